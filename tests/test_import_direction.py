@@ -1,0 +1,78 @@
+"""The arrows of docs/contracts.md, checked on the source: every import statement (top level or inside a function)
+of every .py file under motion/, service/, client/ and model/ is read with `ast`."""
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+OURS = {"motion", "model", "export", "service", "client", "cli"}
+STDLIB = set(sys.stdlib_module_names) | {"__future__"}
+
+# which of our packages each package may import (itself included)
+ALLOWED_OURS = {
+    "motion": {"motion"},
+    "service": {"service", "motion"},
+    "client": {"client"},
+    "model": {"model", "motion"},
+}
+NEVER = {"torch"}  # for motion, service and client
+MOTION_THIRD_PARTY = {"numpy"}
+GLTF_THIRD_PARTY = {"numpy", "pygltflib", "trimesh"}
+
+
+def imported_top_names(path: Path) -> list[tuple[int, str]]:
+    """(line, top-level module) for every import in the file; relative imports count as the file's own package."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    package = path.relative_to(REPO).parts[0]
+    names: list[tuple[int, str]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [(node.lineno, alias.name.split(".")[0]) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            names.append((node.lineno, package if node.level else (node.module or "").split(".")[0]))
+    return names
+
+
+def sources(package: str) -> list[Path]:
+    return sorted((REPO / package).rglob("*.py"))
+
+
+def violations(package: str) -> list[str]:
+    found = []
+    for path in sources(package):
+        where = path.relative_to(REPO)
+        for line, name in imported_top_names(path):
+            if name in OURS and name not in ALLOWED_OURS[package]:
+                found.append(f"{where}:{line} imports {name}")
+            if package != "model" and name in NEVER:
+                found.append(f"{where}:{line} imports {name}")
+            if package == "motion" and name not in STDLIB and name not in OURS:
+                allowed = GLTF_THIRD_PARTY if path.name == "gltf.py" else MOTION_THIRD_PARTY
+                if name not in allowed:
+                    found.append(f"{where}:{line} imports {name} (motion/ is numpy-only)")
+    return found
+
+
+@pytest.mark.parametrize("package", sorted(ALLOWED_OURS))
+def test_import_direction(package):
+    assert sources(package), f"{package}/ has no Python files"
+    assert violations(package) == []
+
+
+def test_the_checker_sees_nested_and_relative_imports(tmp_path, monkeypatch):
+    """The rule must be able to fail: a nested torch import and a relative import are both reported."""
+    fake = tmp_path / "service" / "engine"
+    fake.mkdir(parents=True)
+    (fake / "bad.py").write_text("def f():\n    import torch\n    from model.gpt import GPT\nfrom . import x\n")
+    monkeypatch.setattr(sys.modules[__name__], "REPO", tmp_path)
+    assert violations("service") == [
+        "service/engine/bad.py:2 imports torch",
+        "service/engine/bad.py:3 imports model",
+    ]
+    (tmp_path / "motion").mkdir()
+    (tmp_path / "motion" / "features.py").write_text("import numpy\nimport scipy.ndimage\n")
+    assert violations("motion") == ["motion/features.py:2 imports scipy (motion/ is numpy-only)"]
