@@ -6,41 +6,51 @@ import importlib
 import sys
 from typing import Sequence
 
-# Each module in cli/commands exposes `register(subparsers)`; the handler it sets via
-# `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code.
-COMMAND_MODULES = [
-    "motion",     # t2m motion joints|features|from-bvh
-    "data",       # t2m data build
-    "train",      # t2m train vq|gpt|evaluator
-    "evaluate",   # t2m eval
-    "export",     # t2m export
-    "importer",   # t2m import t2m-gpt
-    "bench",      # t2m bench
-    "serve",      # t2m serve
-    "generate",   # t2m generate
-]
+# Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
+# `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code. Only the module of the
+# command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "motion": ("cli.commands.motion", "convert between features, joints and BVH"),
+    "data": ("cli.commands.data", "build a training set in HumanML3D's layout"),
+    "train": ("cli.commands.train", "train the VQ-VAE, the GPT or the evaluator"),
+    "eval": ("cli.commands.evaluate", "evaluate trained models (FID, R-precision, ...)"),
+    "export": ("cli.commands.export", "export trained models to an ONNX bundle"),
+    "import": ("cli.commands.importer", "import released checkpoints (T2M-GPT) as a bundle"),
+    "bench": ("cli.commands.bench", "benchmark generation speed"),
+    "serve": ("cli.commands.serve", "run the HTTP service"),
+    "generate": ("cli.commands.generate", "generate a motion file without a server"),
+}
 
 
 class CliError(Exception):
     """A user error: printed as one line on stderr, exit code 2. Never a traceback."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _selected_command(argv: Sequence[str]) -> str | None:
+    """The command named on the command line (the first word that is not an option), if any."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
+
+
+def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
+    """The parser with the selected command fully registered and the others as one-line entries for --help.
+
+    `selected=None` registers every command (used by tests and documentation tools)."""
     parser = argparse.ArgumentParser(prog="t2m", description="Text-to-motion: data, training, export and serving.")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"cli.commands.{name}")
-        except ModuleNotFoundError as error:
-            if error.name == f"cli.commands.{name}":
-                continue  # a subcommand not written yet
-            raise
-        module.register(subparsers)
+    for name, (module_name, help_text) in COMMANDS.items():
+        if selected is None or name == selected:
+            importlib.import_module(module_name).register(subparsers)
+        else:
+            subparsers.add_parser(name, help=help_text)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_selected_command(argv) or "")
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

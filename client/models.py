@@ -1,0 +1,117 @@
+"""The SDK's own small types, mirroring the service's API schema (the SDK imports nothing of the service)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence, Tuple, Union
+
+import numpy as np
+
+__all__ = ["Segment", "SegmentSpan", "ModelInfo", "Motion", "Health", "RawResult", "SegmentsLike", "to_segments",
+           "warnings_of"]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One sentence; duration in seconds (0.5-10) or None to let the model end it."""
+
+    text: str
+    duration: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"text": self.text, "duration": self.duration}
+
+
+SegmentsLike = Union[str, Segment, Sequence[Union[Segment, Tuple[str, Union[float, None]], Mapping[str, Any], str]]]
+
+
+def to_segments(segments: SegmentsLike) -> list[Segment]:
+    """Accept a sentence, a Segment, or a list of Segments / (text, duration) pairs / dicts / sentences."""
+    if isinstance(segments, (str, Segment)):
+        segments = [segments]
+    result = []
+    for item in segments:
+        if isinstance(item, Segment):
+            result.append(item)
+        elif isinstance(item, str):
+            result.append(Segment(item))
+        elif isinstance(item, Mapping):
+            result.append(Segment(str(item["text"]), item.get("duration")))
+        else:
+            text, duration = item
+            result.append(Segment(text, duration))
+    return result
+
+
+@dataclass(frozen=True)
+class SegmentSpan:
+    """Which frames a sentence produced: frames[start_frame:end_frame] (end exclusive)."""
+
+    text: str
+    start_frame: int
+    end_frame: int
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    name: str
+    version: str
+
+
+@dataclass
+class Motion:
+    """A generated motion: frames [T, J, 3] joint positions in metres, Y up, at `fps` frames per second."""
+
+    frames: np.ndarray
+    fps: int
+    joints: list[str]
+    parents: list[int]
+    segments: list[SegmentSpan]
+    seed: int
+    model: ModelInfo
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.frames.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Seconds of motion."""
+        return self.num_frames / self.fps
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> "Motion":
+        frames = np.asarray(data["frames"], dtype=np.float32)
+        if frames.size == 0:
+            frames = frames.reshape(0, len(data["joints"]), 3)
+        return cls(frames=frames, fps=int(data["fps"]), joints=list(data["joints"]), parents=list(data["parents"]),
+                   segments=[SegmentSpan(s["text"], int(s["start_frame"]), int(s["end_frame"]))
+                             for s in data["segments"]],
+                   seed=int(data["seed"]), model=ModelInfo(**data["model"]), warnings=list(data.get("warnings", [])))
+
+
+@dataclass(frozen=True)
+class Health:
+    status: str                       # "ok" | "loading" | "error"
+    model: dict[str, Any] | None = None
+    detail: str | None = None
+
+    @property
+    def ready(self) -> bool:
+        return self.status == "ok"
+
+
+@dataclass(frozen=True)
+class RawResult:
+    """A generated file as the server sent it (bvh text or glb bytes), with the seed it used."""
+
+    content: bytes
+    media_type: str
+    seed: int | None
+    warnings: list[str]
+
+
+def warnings_of(header: str | None) -> list[str]:
+    return [part.strip() for part in header.split(" | ")] if header else []
+
+

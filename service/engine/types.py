@@ -1,0 +1,110 @@
+"""Plain data passed between the HTTP layer and the engine (no pydantic, no onnxruntime).
+
+The engine works on resolved requests (seed and guidance already chosen) so that it is deterministic and easy to
+call from the CLI, the batcher and tests alike.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Protocol, Sequence
+
+import numpy as np
+
+__all__ = ["tokens_for_duration", "ModelLimits", "SegmentRequest", "GenerationRequest", "SegmentSpan", "Motion",
+           "GenerationCancelled", "RequestLimitError", "Engine"]
+
+
+def tokens_for_duration(duration: float, fps: int = 20, frames_per_token: int = 4) -> int:
+    """Code tokens for a segment of `duration` seconds: round(duration * fps / frames_per_token), at least 1.
+
+    Python's round (half to even) is the documented formula: frames = round(duration * 20 / 4) * 4.
+    """
+    return max(1, round(duration * fps / frames_per_token))
+
+
+@dataclass(frozen=True)
+class ModelLimits:
+    """What the HTTP layer needs to know about the loaded model to validate and default a request."""
+
+    name: str
+    version: str
+    fps: int
+    frames_per_token: int
+    max_tokens: int
+    codebook_size: int
+    default_guidance: float
+    unconditional_branch: bool
+    length_conditioning: bool = False
+    skeleton: str = "smpl22"
+    joint_names: tuple[str, ...] = ()
+    parents: tuple[int, ...] = ()
+    details: dict = field(default_factory=dict)   # extra facts shown by /health (licence, text encoder, ...)
+
+    @property
+    def max_segment_seconds(self) -> float:
+        """The length of a free (duration null) segment at most: max_tokens tokens."""
+        return self.max_tokens * self.frames_per_token / self.fps
+
+
+@dataclass(frozen=True)
+class SegmentRequest:
+    text: str
+    duration: float | None   # seconds; None = the model ends the segment with its End token
+
+
+@dataclass
+class GenerationRequest:
+    """A validated request with every choice made: the same object always gives the same motion."""
+
+    segments: list[SegmentRequest]
+    seed: int
+    guidance: float = 1.0
+    temperature: float = 1.0
+    top_k: int | None = None
+    cancel_event: threading.Event = field(default_factory=threading.Event, compare=False, repr=False)
+
+    def cancel(self) -> None:
+        """Ask the engine to stop working on this request (e.g. its HTTP client timed out)."""
+        self.cancel_event.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self.cancel_event.is_set()
+
+
+@dataclass(frozen=True)
+class SegmentSpan:
+    text: str
+    start_frame: int
+    end_frame: int   # exclusive: frames[start_frame:end_frame] belong to the segment
+
+
+@dataclass
+class Motion:
+    """A generated motion: joint positions in metres (Y up) plus which frames each sentence produced."""
+
+    joints: np.ndarray          # float32 [T, J, 3]
+    fps: int
+    segments: list[SegmentSpan]
+    seed: int
+    tokens: int = 0             # code tokens generated (for metrics)
+    warnings: list[str] = field(default_factory=list)
+
+
+class RequestLimitError(ValueError):
+    """The request breaks a limit of the loaded model; the message starts with the field (e.g. 'top_k: ...')."""
+
+
+class GenerationCancelled(RuntimeError):
+    """The request was cancelled (timed out) before the engine finished it."""
+
+
+class Engine(Protocol):
+    """What the service needs from an engine (OnnxEngine, or a stand-in in tests)."""
+
+    limits: ModelLimits
+
+    def generate_batch(self, requests: Sequence[GenerationRequest]) -> list[Motion | BaseException]:
+        """Generate several requests together; a failure of one request is returned in its place."""
+        ...

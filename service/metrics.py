@@ -1,0 +1,69 @@
+"""Prometheus metrics of one app instance (its own registry, so several apps in one process do not collide).
+
+t2m_requests_total{route,method,status}, t2m_request_duration_seconds{route} (histogram),
+t2m_tokens_generated_total, t2m_segments_generated_total, t2m_queue_depth, t2m_in_flight, t2m_model_info{name,version}.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+__all__ = ["ServiceMetrics", "MetricsMiddleware"]
+
+LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0)
+
+
+class ServiceMetrics:
+    """The collectors; queue depth and in-flight are read from the batcher when Prometheus scrapes."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry()
+        self.requests = Counter("t2m_requests", "HTTP requests by route, method and status code",
+                                ["route", "method", "status"], registry=self.registry)
+        self.latency = Histogram("t2m_request_duration_seconds", "HTTP request latency by route", ["route"],
+                                 buckets=LATENCY_BUCKETS, registry=self.registry)
+        self.tokens = Counter("t2m_tokens_generated", "Motion code tokens generated", registry=self.registry)
+        self.segments = Counter("t2m_segments_generated", "Sentences turned into motion", registry=self.registry)
+        self.queue_depth = Gauge("t2m_queue_depth", "Requests waiting for an engine worker", registry=self.registry)
+        self.in_flight = Gauge("t2m_in_flight", "Requests being generated now", registry=self.registry)
+        self.model = Info("t2m_model", "The loaded model bundle", registry=self.registry)
+        self.queue_depth.set_function(lambda: 0)
+        self.in_flight.set_function(lambda: 0)
+
+    def watch_queue(self, queue_depth: Callable[[], float], in_flight: Callable[[], float]) -> None:
+        self.queue_depth.set_function(queue_depth)
+        self.in_flight.set_function(in_flight)
+
+
+class MetricsMiddleware:
+    """Counts every HTTP request by its route template (not the raw path, to keep label cardinality bounded)."""
+
+    def __init__(self, app: ASGIApp, metrics: ServiceMetrics, known_paths: Callable[[], set[str]]) -> None:
+        self.app = app
+        self.metrics = metrics
+        self.known_paths = known_paths
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        status = 500
+        started = time.perf_counter()
+
+        async def send_and_record(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_and_record)
+        finally:
+            route = scope.get("route")
+            path = getattr(route, "path", None) or scope.get("path", "")
+            label = path if path in self.known_paths() else "unmatched"
+            self.metrics.requests.labels(label, scope.get("method", ""), str(status)).inc()
+            self.metrics.latency.labels(label).observe(time.perf_counter() - started)

@@ -1,0 +1,1 @@
+"""HTTP routes: generate (POST /generate), health (GET /health), metrics (GET /metrics)."""

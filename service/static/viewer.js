@@ -1,0 +1,611 @@
+/*
+ * t2m viewer: a form that POSTs /generate and a small 3D skeleton player.
+ *
+ * Everything is drawn on a 2D canvas with our own perspective projection (a pinhole camera orbiting a target),
+ * so the page needs no WebGL, no libraries and no network beyond this service. The page reports its state on
+ * <body data-state data-frames data-frame> so scripts and tests can follow it without scraping the UI.
+ */
+(function () {
+  'use strict';
+
+  // ---------------------------------------------------------------- constants
+
+  const FIELD_OF_VIEW = (50 * Math.PI) / 180; // vertical
+  const NEAR = 0.05; // metres; lines are clipped here so nothing behind the camera is drawn
+  const GRID_HALF = 8; // metres of floor grid on each side of the camera target
+  const PITCH_LIMITS = [0.03, 1.45];
+  const DISTANCE_LIMITS = [1.2, 30];
+  const SEGMENT_COLORS = ['#4fa3ff', '#f5a35c', '#6fd49a', '#e07bd4', '#f0d35a', '#7fd6e0', '#ff8a8a', '#b39ddb'];
+  const SIDE_COLORS = { left: '#4fa3ff', right: '#f5a35c', centre: '#e3e6eb' };
+  const DEFAULT_ROWS = [
+    ['a person walks forward', 3],
+    ['a person turns around and waves', 3],
+  ];
+
+  // ---------------------------------------------------------------- elements and state
+
+  const $ = (id) => document.getElementById(id);
+  const ui = {
+    form: $('generate-form'),
+    rows: $('segment-rows'),
+    rowTemplate: $('segment-row-template'),
+    addRow: $('add-row'),
+    seed: $('seed'),
+    guidance: $('guidance'),
+    temperature: $('temperature'),
+    topK: $('top-k'),
+    apiKey: $('api-key'),
+    generate: $('generate'),
+    message: $('message'),
+    downloadBvh: $('download-bvh'),
+    downloadGlb: $('download-glb'),
+    modelInfo: $('model-info'),
+    serverStatus: $('server-status'),
+    canvas: $('view'),
+    caption: $('caption'),
+    play: $('play'),
+    slider: $('frame-slider'),
+    strip: $('segment-strip'),
+    frameLabel: $('frame-label'),
+    follow: $('follow'),
+  };
+  const ctx = ui.canvas.getContext('2d');
+
+  const state = {
+    motion: null, // the JSON response being shown
+    request: null, // the request body that produced it, with the seed the server used
+    playing: true,
+    clock: 0, // seconds into the motion
+    frame: -1,
+    lastTick: null,
+    camera: { yaw: 0.55, pitch: 0.28, distance: 4.6, target: [0, 0.9, 0] },
+    drag: null,
+    sides: [], // 'left' | 'right' | 'centre' per joint
+    headJoint: -1,
+    currentSegment: -1,
+  };
+
+  // ---------------------------------------------------------------- small vector helpers
+
+  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+  const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+  const scale = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const normalize = (a) => scale(a, 1 / Math.hypot(a[0], a[1], a[2]));
+  const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
+
+  // ---------------------------------------------------------------- camera and projection
+
+  /** The camera basis for this frame: eye on a sphere around the target, looking at it, Y up. */
+  function makeView(width, height) {
+    const cam = state.camera;
+    const cp = Math.cos(cam.pitch);
+    const towardEye = [cp * Math.sin(cam.yaw), Math.sin(cam.pitch), cp * Math.cos(cam.yaw)];
+    const eye = add(cam.target, scale(towardEye, cam.distance));
+    const forward = scale(towardEye, -1);
+    const right = normalize(cross(forward, [0, 1, 0]));
+    const up = cross(right, forward);
+    const focal = (0.5 * height) / Math.tan(FIELD_OF_VIEW / 2);
+    return { eye, forward, right, up, focal, cx: width / 2, cy: height / 2 };
+  }
+
+  /** World point -> camera coordinates (x right, y up, z = depth along the view direction). */
+  function toCamera(view, p) {
+    const d = sub(p, view.eye);
+    return [dot(d, view.right), dot(d, view.up), dot(d, view.forward)];
+  }
+
+  /** Camera coordinates -> canvas pixels (only for depth >= NEAR). */
+  function toScreen(view, c) {
+    return [view.cx + (view.focal * c[0]) / c[2], view.cy - (view.focal * c[1]) / c[2]];
+  }
+
+  /** Clips a camera-space segment against the near plane; null when it lies wholly behind it. */
+  function clipNear(a, b) {
+    if (a[2] < NEAR && b[2] < NEAR) return null;
+    if (a[2] >= NEAR && b[2] >= NEAR) return [a, b];
+    const t = (NEAR - a[2]) / (b[2] - a[2]);
+    const hit = [a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, NEAR];
+    return a[2] < NEAR ? [hit, b] : [a, hit];
+  }
+
+  function strokeSegment(view, a, b) {
+    const clipped = clipNear(toCamera(view, a), toCamera(view, b));
+    if (!clipped) return;
+    const p = toScreen(view, clipped[0]);
+    const q = toScreen(view, clipped[1]);
+    ctx.beginPath();
+    ctx.moveTo(p[0], p[1]);
+    ctx.lineTo(q[0], q[1]);
+    ctx.stroke();
+  }
+
+  // ---------------------------------------------------------------- drawing
+
+  function resizeCanvas() {
+    const dpr = window.devicePixelRatio || 1;
+    const w = Math.max(1, Math.round(ui.canvas.clientWidth * dpr));
+    const h = Math.max(1, Math.round(ui.canvas.clientHeight * dpr));
+    if (ui.canvas.width !== w || ui.canvas.height !== h) {
+      ui.canvas.width = w;
+      ui.canvas.height = h;
+    }
+    return dpr;
+  }
+
+  function drawBackground(w, h) {
+    const sky = ctx.createLinearGradient(0, 0, 0, h);
+    sky.addColorStop(0, '#1d232c');
+    sky.addColorStop(1, '#0f1215');
+    ctx.fillStyle = sky;
+    ctx.fillRect(0, 0, w, h);
+  }
+
+  /** A 1 m floor grid around the target, fading with distance so its edge does not show. */
+  function drawGrid(view, dpr) {
+    const t = state.camera.target;
+    const cx = Math.round(t[0]);
+    const cz = Math.round(t[2]);
+    ctx.lineWidth = 1 * dpr;
+    for (let i = -GRID_HALF; i <= GRID_HALF; i++) {
+      for (let k = -GRID_HALF; k < GRID_HALF; k++) {
+        // One metre piece of the line x = cx + i and one of the line z = cz + i.
+        const fade = 1 - Math.hypot(i, k + 0.5) / (GRID_HALF + 0.5);
+        if (fade <= 0) continue;
+        const major = (cx + i) % 5 === 0;
+        ctx.strokeStyle = `rgba(150, 165, 185, ${(major ? 0.42 : 0.22) * fade})`;
+        strokeSegment(view, [cx + i, 0, cz + k], [cx + i, 0, cz + k + 1]);
+        const majorZ = (cz + i) % 5 === 0;
+        ctx.strokeStyle = `rgba(150, 165, 185, ${(majorZ ? 0.42 : 0.22) * fade})`;
+        strokeSegment(view, [cx + k, 0, cz + i], [cx + k + 1, 0, cz + i]);
+      }
+    }
+  }
+
+  /** The pelvis path on the floor: the whole path faint, the part already played brighter. */
+  function drawTrajectory(view, frames, upTo, dpr) {
+    ctx.lineWidth = 2 * dpr;
+    for (let f = 1; f < frames.length; f++) {
+      const a = frames[f - 1][0];
+      const b = frames[f][0];
+      ctx.strokeStyle = f <= upTo ? 'rgba(79, 163, 255, 0.55)' : 'rgba(79, 163, 255, 0.16)';
+      strokeSegment(view, [a[0], 0.002, a[2]], [b[0], 0.002, b[2]]);
+    }
+  }
+
+  function drawSkeleton(view, joints, parents, dpr) {
+    ctx.lineCap = 'round';
+    const cam = joints.map((p) => toCamera(view, p));
+
+    // Shadow: the bones flattened onto the floor.
+    ctx.strokeStyle = 'rgba(0, 0, 0, 0.35)';
+    for (let j = 0; j < parents.length; j++) {
+      const p = parents[j];
+      if (p < 0) continue;
+      const a = joints[j];
+      const b = joints[p];
+      const depth = toCamera(view, [a[0], 0, a[2]])[2];
+      ctx.lineWidth = Math.max(1, (0.05 * view.focal) / Math.max(depth, NEAR));
+      strokeSegment(view, [a[0], 0.001, a[2]], [b[0], 0.001, b[2]]);
+    }
+
+    // Bones far to near, so nearer limbs cover farther ones.
+    const bones = [];
+    for (let j = 0; j < parents.length; j++) {
+      if (parents[j] >= 0) bones.push({ j, p: parents[j], depth: (cam[j][2] + cam[parents[j]][2]) / 2 });
+    }
+    bones.sort((x, y) => y.depth - x.depth);
+    for (const bone of bones) {
+      if (bone.depth < NEAR) continue;
+      ctx.strokeStyle = SIDE_COLORS[state.sides[bone.j]] || SIDE_COLORS.centre;
+      ctx.lineWidth = Math.max(1.5 * dpr, (0.05 * view.focal) / bone.depth);
+      strokeSegment(view, joints[bone.j], joints[bone.p]);
+    }
+
+    // Joints as dots, the head as a larger disc.
+    for (let j = 0; j < joints.length; j++) {
+      const c = cam[j];
+      if (c[2] < NEAR) continue;
+      const s = toScreen(view, c);
+      const radius = ((j === state.headJoint ? 0.1 : 0.028) * view.focal) / c[2];
+      ctx.beginPath();
+      ctx.arc(s[0], s[1], Math.max(1.5 * dpr, radius), 0, 2 * Math.PI);
+      ctx.fillStyle = j === state.headJoint ? '#e3e6eb' : '#0f1215';
+      ctx.fill();
+      ctx.lineWidth = Math.max(1, 0.012 * view.focal / c[2]);
+      ctx.strokeStyle = SIDE_COLORS[state.sides[j]] || SIDE_COLORS.centre;
+      ctx.stroke();
+    }
+  }
+
+  function drawPlaceholder(w, h, dpr) {
+    ctx.fillStyle = 'rgba(227, 230, 235, 0.55)';
+    ctx.font = `${15 * dpr}px system-ui, sans-serif`;
+    ctx.textAlign = 'center';
+    ctx.fillText('Type sentences on the left and press Generate', w / 2, h * 0.42);
+  }
+
+  function render() {
+    const dpr = resizeCanvas();
+    const w = ui.canvas.width;
+    const h = ui.canvas.height;
+    const view = makeView(w, h);
+    drawBackground(w, h);
+    drawGrid(view, dpr);
+    const motion = state.motion;
+    if (!motion) {
+      drawPlaceholder(w, h, dpr);
+      return;
+    }
+    drawTrajectory(view, motion.frames, state.frame, dpr);
+    drawSkeleton(view, motion.frames[state.frame], motion.parents, dpr);
+  }
+
+  // ---------------------------------------------------------------- playback
+
+  function setFrame(frame) {
+    const motion = state.motion;
+    if (!motion) return;
+    const total = motion.frames.length;
+    frame = ((frame % total) + total) % total;
+    if (frame === state.frame) return;
+    state.frame = frame;
+    ui.slider.value = String(frame);
+    ui.frameLabel.textContent = `${frame + 1} / ${total} · ${(frame / motion.fps).toFixed(2)} s`;
+    document.body.dataset.frame = String(frame);
+    showSegmentAt(frame);
+  }
+
+  function showSegmentAt(frame) {
+    const segments = state.motion.segments || [];
+    let index = segments.findIndex((s) => frame >= s.start_frame && frame < s.end_frame);
+    if (index < 0 && segments.length && frame >= segments[segments.length - 1].start_frame) index = segments.length - 1;
+    if (index === state.currentSegment) return;
+    state.currentSegment = index;
+    ui.caption.hidden = index < 0;
+    ui.caption.textContent = index >= 0 ? segments[index].text : '';
+    ui.caption.style.borderColor = index >= 0 ? SEGMENT_COLORS[index % SEGMENT_COLORS.length] : '';
+    Array.from(ui.strip.children).forEach((el, i) => el.classList.toggle('current', i === index));
+  }
+
+  function setPlaying(playing) {
+    state.playing = playing;
+    ui.play.textContent = playing ? 'Pause' : 'Play';
+    if (state.motion) state.clock = state.frame / state.motion.fps;
+  }
+
+  function followTarget(dt) {
+    if (!state.motion || !ui.follow.checked) return;
+    const pelvis = state.motion.frames[state.frame][0];
+    const t = state.camera.target;
+    const k = Math.min(1, dt * 5);
+    t[0] += (pelvis[0] - t[0]) * k;
+    t[2] += (pelvis[2] - t[2]) * k;
+    // Snap when close, so a paused picture comes to rest instead of creeping for ever.
+    if (Math.hypot(pelvis[0] - t[0], pelvis[2] - t[2]) < 0.005) {
+      t[0] = pelvis[0];
+      t[2] = pelvis[2];
+    }
+  }
+
+  function tick(now) {
+    const dt = state.lastTick === null ? 0 : Math.min(0.1, (now - state.lastTick) / 1000);
+    state.lastTick = now;
+    if (state.motion && state.playing) {
+      state.clock += dt;
+      setFrame(Math.floor(state.clock * state.motion.fps) % state.motion.frames.length);
+    }
+    followTarget(dt);
+    render();
+    window.requestAnimationFrame(tick);
+  }
+
+  function loadMotion(motion, request) {
+    const frames = motion.frames;
+    const parents = motion.parents;
+    if (!Array.isArray(frames) || !frames.length || !Array.isArray(parents) || frames[0].length !== parents.length) {
+      throw new Error('the server answered with an unexpected motion layout');
+    }
+    state.motion = motion;
+    state.request = request;
+    state.sides = (motion.joints || []).map((name) =>
+      /^(left|l_)/i.test(name) ? 'left' : /^(right|r_)/i.test(name) ? 'right' : 'centre');
+    state.headJoint = (motion.joints || []).indexOf('head');
+    state.frame = -1;
+    state.currentSegment = -2;
+    state.clock = 0;
+    // Aim at the body's middle: the median pelvis height (about 0.9 m standing; lower for a crawl or a sit).
+    const heights = frames.map((f) => f[0][1]).sort((x, y) => x - y);
+    const start = frames[0][0];
+    state.camera.target = [start[0], clamp(heights[heights.length >> 1], 0.3, 1.3), start[2]];
+
+    ui.slider.max = String(frames.length - 1);
+    ui.slider.disabled = false;
+    ui.play.disabled = false;
+    buildSegmentStrip(motion.segments || [], frames.length);
+    setFrame(0);
+    setPlaying(true);
+    ui.downloadBvh.disabled = false;
+    ui.downloadGlb.disabled = false;
+    const model = motion.model || {};
+    ui.modelInfo.textContent = model.name ? `model ${model.name} ${model.version || ''}` : '';
+    document.body.dataset.frames = String(frames.length);
+    document.body.dataset.state = 'ready';
+  }
+
+  function buildSegmentStrip(segments, total) {
+    ui.strip.replaceChildren();
+    segments.forEach((s, i) => {
+      const span = document.createElement('span');
+      span.style.flex = `${Math.max(1, s.end_frame - s.start_frame)} 1 0`;
+      span.style.background = SEGMENT_COLORS[i % SEGMENT_COLORS.length];
+      span.textContent = s.text;
+      span.title = `${s.text} (frames ${s.start_frame}–${s.end_frame - 1})`;
+      span.addEventListener('click', () => setFrame(s.start_frame));
+      ui.strip.appendChild(span);
+    });
+    const covered = segments.length ? segments[segments.length - 1].end_frame : 0;
+    if (covered < total) {
+      const rest = document.createElement('span');
+      rest.style.flex = `${total - covered} 1 0`;
+      ui.strip.appendChild(rest);
+    }
+  }
+
+  // ---------------------------------------------------------------- the form
+
+  function addRow(text = '', duration = 3) {
+    const row = ui.rowTemplate.content.firstElementChild.cloneNode(true);
+    row.querySelector('.seg-text').value = text;
+    row.querySelector('.seg-duration').value = duration === null ? '' : String(duration);
+    row.querySelector('.remove-row').addEventListener('click', () => {
+      if (ui.rows.children.length > 1) row.remove();
+      else row.querySelector('.seg-text').value = '';
+    });
+    ui.rows.appendChild(row);
+    return row;
+  }
+
+  function readNumber(input) {
+    const raw = input.value.trim();
+    if (raw === '') return null;
+    const value = Number(raw);
+    return Number.isFinite(value) ? value : NaN;
+  }
+
+  /** The request body from the form; throws with the field named when something is plainly missing. */
+  function buildRequest(format) {
+    clearInvalid();
+    const segments = Array.from(ui.rows.children).map((row, i) => {
+      const textInput = row.querySelector('.seg-text');
+      const durationInput = row.querySelector('.seg-duration');
+      const text = textInput.value.trim();
+      if (!text) throw fieldError(textInput, `sentence ${i + 1}: the text is empty`);
+      const duration = readNumber(durationInput);
+      if (Number.isNaN(duration)) throw fieldError(durationInput, `sentence ${i + 1}: the duration is not a number`);
+      const segment = { text };
+      if (duration !== null) segment.duration = duration;
+      return segment;
+    });
+    const body = { segments, format };
+    for (const [key, input] of [['seed', ui.seed], ['guidance', ui.guidance], ['temperature', ui.temperature], ['top_k', ui.topK]]) {
+      const value = readNumber(input);
+      if (Number.isNaN(value)) throw fieldError(input, `${key} is not a number`);
+      if (value !== null) body[key] = value;
+    }
+    return body;
+  }
+
+  function fieldError(input, message) {
+    input.classList.add('invalid');
+    input.focus();
+    return new Error(message);
+  }
+
+  function clearInvalid() {
+    document.querySelectorAll('.invalid').forEach((el) => el.classList.remove('invalid'));
+  }
+
+  /** Marks the input a 422 error points at (loc like ["body", "segments", 1, "duration"]). */
+  function markFromLocation(loc) {
+    const path = loc[0] === 'body' ? loc.slice(1) : loc;
+    if (path[0] === 'segments' && Number.isInteger(path[1])) {
+      const row = ui.rows.children[path[1]];
+      const input = row && row.querySelector(path[2] === 'duration' ? '.seg-duration' : '.seg-text');
+      if (input) input.classList.add('invalid');
+      return;
+    }
+    const byField = { seed: ui.seed, guidance: ui.guidance, temperature: ui.temperature, top_k: ui.topK };
+    if (byField[path[0]]) byField[path[0]].classList.add('invalid');
+  }
+
+  function showMessage(text, kind = '') {
+    ui.message.textContent = text;
+    ui.message.className = `message ${kind}`;
+  }
+
+  /** A readable sentence for a failed response: names the fields (422), the wait (429), or the status. */
+  async function describeFailure(response) {
+    let body = null;
+    try {
+      body = await response.json();
+    } catch (_) {
+      // not JSON; fall back to the status line
+    }
+    const detail = body && body.detail;
+    if (response.status === 422 && Array.isArray(detail)) {
+      detail.forEach((d) => Array.isArray(d.loc) && markFromLocation(d.loc));
+      return detail
+        .map((d) => `${(d.loc || []).filter((p) => p !== 'body').join('.')}: ${d.msg}`)
+        .join('\n');
+    }
+    if (response.status === 429) {
+      const wait = response.headers.get('Retry-After');
+      return `The server is busy${wait ? `; try again in ${wait} s` : '; try again shortly'}.`;
+    }
+    if (response.status === 503) return 'The model is still loading; try again in a moment.';
+    if (response.status === 401 || response.status === 403) {
+      ui.apiKey.closest('details').open = true;
+      ui.apiKey.classList.add('invalid');
+      return 'This server needs an API key: enter it under "API key".';
+    }
+    const text = typeof detail === 'string' ? detail : detail ? JSON.stringify(detail) : response.statusText;
+    return `Request failed (${response.status}): ${text}`;
+  }
+
+  async function postGenerate(body) {
+    const headers = { 'Content-Type': 'application/json' };
+    const key = ui.apiKey.value.trim();
+    if (key) headers.Authorization = `Bearer ${key}`;
+    return fetch('generate', { method: 'POST', headers, body: JSON.stringify(body) });
+  }
+
+  async function onGenerate(event) {
+    event.preventDefault();
+    let body;
+    try {
+      body = buildRequest('json');
+    } catch (err) {
+      showMessage(err.message, 'error');
+      return;
+    }
+    ui.generate.disabled = true;
+    document.body.dataset.state = 'loading';
+    showMessage('Generating…');
+    const started = performance.now();
+    try {
+      const response = await postGenerate(body);
+      if (!response.ok) {
+        showMessage(await describeFailure(response), 'error');
+        document.body.dataset.state = 'error';
+        return;
+      }
+      const motion = await response.json();
+      loadMotion(motion, { ...body, seed: motion.seed });
+      const seconds = ((performance.now() - started) / 1000).toFixed(2);
+      showMessage(`${motion.frames.length} frames (${(motion.frames.length / motion.fps).toFixed(1)} s of motion) ` +
+        `in ${seconds} s · seed ${motion.seed}`, 'ok');
+    } catch (err) {
+      showMessage(`Could not generate: ${err.message}`, 'error');
+      document.body.dataset.state = 'error';
+    } finally {
+      ui.generate.disabled = false;
+    }
+  }
+
+  function filenameFrom(response, fallback) {
+    const disposition = response.headers.get('Content-Disposition') || '';
+    const match = /filename\*?=(?:UTF-8'')?"?([^";]+)"?/i.exec(disposition);
+    return match ? decodeURIComponent(match[1]) : fallback;
+  }
+
+  /** Asks for the shown motion again in another format (same request, same seed) and saves the file. */
+  async function download(format, button) {
+    if (!state.request) return;
+    button.disabled = true;
+    try {
+      const response = await postGenerate({ ...state.request, format });
+      if (!response.ok) {
+        showMessage(await describeFailure(response), 'error');
+        return;
+      }
+      const blob = await response.blob();
+      const name = filenameFrom(response, `motion.${format}`);
+      const url = URL.createObjectURL(blob);
+      const link = document.createElement('a');
+      link.href = url;
+      link.download = name;
+      document.body.appendChild(link);
+      link.click();
+      link.remove();
+      setTimeout(() => URL.revokeObjectURL(url), 30000);
+      document.body.dataset.lastDownload = `${name}:${blob.size}`;
+      showMessage(`Saved ${name} (${(blob.size / 1024).toFixed(1)} KiB).`, 'ok');
+    } catch (err) {
+      showMessage(`Could not download: ${err.message}`, 'error');
+    } finally {
+      button.disabled = false;
+    }
+  }
+
+  // ---------------------------------------------------------------- server status
+
+  async function pollHealth() {
+    let delay = 5000;
+    try {
+      const response = await fetch('health', { cache: 'no-store' });
+      if (response.ok) {
+        const health = await response.json().catch(() => ({}));
+        const model = health.model || {};
+        ui.serverStatus.textContent = model.name ? `${model.name} ${model.version || ''} · ready` : 'model ready';
+        ui.serverStatus.className = 'pill ready';
+        delay = 30000;
+      } else {
+        ui.serverStatus.textContent = 'model loading…';
+        ui.serverStatus.className = 'pill loading';
+        delay = 2000;
+      }
+    } catch (_) {
+      ui.serverStatus.textContent = 'server unreachable';
+      ui.serverStatus.className = 'pill down';
+    }
+    setTimeout(pollHealth, delay);
+  }
+
+  // ---------------------------------------------------------------- camera controls
+
+  ui.canvas.addEventListener('pointerdown', (e) => {
+    state.drag = { x: e.clientX, y: e.clientY };
+    ui.canvas.setPointerCapture(e.pointerId);
+    ui.canvas.classList.add('dragging');
+    ui.canvas.focus();
+  });
+  ui.canvas.addEventListener('pointermove', (e) => {
+    if (!state.drag) return;
+    const cam = state.camera;
+    cam.yaw -= (e.clientX - state.drag.x) * 0.008;
+    cam.pitch = clamp(cam.pitch + (e.clientY - state.drag.y) * 0.006, PITCH_LIMITS[0], PITCH_LIMITS[1]);
+    state.drag = { x: e.clientX, y: e.clientY };
+  });
+  const endDrag = () => {
+    state.drag = null;
+    ui.canvas.classList.remove('dragging');
+  };
+  ui.canvas.addEventListener('pointerup', endDrag);
+  ui.canvas.addEventListener('pointercancel', endDrag);
+  ui.canvas.addEventListener('wheel', (e) => {
+    e.preventDefault();
+    const cam = state.camera;
+    cam.distance = clamp(cam.distance * Math.exp(e.deltaY * 0.0012), DISTANCE_LIMITS[0], DISTANCE_LIMITS[1]);
+  }, { passive: false });
+  ui.canvas.addEventListener('keydown', (e) => {
+    if (!state.motion) return;
+    if (e.key === ' ') {
+      e.preventDefault();
+      setPlaying(!state.playing);
+    } else if (e.key === 'ArrowRight' || e.key === 'ArrowLeft') {
+      e.preventDefault();
+      setPlaying(false);
+      setFrame(state.frame + (e.key === 'ArrowRight' ? 1 : -1));
+      state.clock = state.frame / state.motion.fps;
+    }
+  });
+
+  // ---------------------------------------------------------------- wiring
+
+  ui.form.addEventListener('submit', onGenerate);
+  ui.addRow.addEventListener('click', () => addRow('', 3).querySelector('.seg-text').focus());
+  ui.play.addEventListener('click', () => setPlaying(!state.playing));
+  ui.slider.addEventListener('input', () => {
+    setFrame(Number(ui.slider.value));
+    if (state.motion) state.clock = state.frame / state.motion.fps;
+  });
+  ui.downloadBvh.addEventListener('click', () => download('bvh', ui.downloadBvh));
+  ui.downloadGlb.addEventListener('click', () => download('glb', ui.downloadGlb));
+  ui.form.addEventListener('input', (e) => e.target.classList.remove('invalid'));
+
+  DEFAULT_ROWS.forEach(([text, duration]) => addRow(text, duration));
+  pollHealth();
+  window.requestAnimationFrame(tick);
+})();

@@ -1,0 +1,150 @@
+"""Fixtures of the service tests: a tiny random bundle (built once), engines, apps and a live uvicorn server."""
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Callable, Iterator
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))   # tests/service/fakes.py
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_MODEL = REPO / "models" / "default"
+
+
+@pytest.fixture(scope="session")
+def random_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny random-weight bundle from export.bundle (codebook 32, max_tokens 50, length conditioning, guidance)."""
+    import torch
+
+    from export.bundle import build_random_bundle
+
+    torch.set_num_threads(1)
+    return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random", seed=0)
+
+
+@pytest.fixture(scope="session")
+def bundle_without_uncond(random_bundle: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same graphs, declared as trained without an unconditional branch (manifest is not hashed)."""
+    target = tmp_path_factory.mktemp("bundle") / "no-uncond"
+    shutil.copytree(random_bundle, target)
+    manifest = json.loads((target / "manifest.json").read_text())
+    manifest["gpt"]["unconditional_branch"] = False
+    (target / "manifest.json").write_text(json.dumps(manifest))
+    return target
+
+
+@pytest.fixture(scope="session")
+def onnx_engine(random_bundle: Path):
+    from service.engine.engine import OnnxEngine
+
+    return OnnxEngine.load(random_bundle, intra_op_threads=1)
+
+
+@pytest.fixture(scope="session")
+def default_model() -> Path:
+    if not (DEFAULT_MODEL / "manifest.json").is_file():
+        pytest.skip(f"the real default model is not committed yet ({DEFAULT_MODEL / 'manifest.json'} is absent)")
+    return DEFAULT_MODEL
+
+
+def wait_ready(client, timeout_s: float = 20.0) -> None:
+    """Poll /health until 200 (the bundle loads in a background thread)."""
+    deadline = time.perf_counter() + timeout_s
+    while time.perf_counter() < deadline:
+        response = client.get("/health")
+        if response.status_code == 200:
+            return
+        assert response.status_code == 503, response.text
+        time.sleep(0.02)
+    raise AssertionError(f"service not ready after {timeout_s} s: {response.json()}")
+
+
+@pytest.fixture
+def make_client() -> Iterator[Callable]:
+    """make_client(settings, engine_factory=None, ready=True) -> a started fastapi TestClient (closed afterwards)."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    opened = []
+
+    def make(settings, engine_factory=None, ready: bool = True, raise_server_exceptions: bool = True):
+        client = TestClient(create_app(settings, engine_factory=engine_factory),
+                            raise_server_exceptions=raise_server_exceptions)
+        client.__enter__()
+        opened.append(client)
+        if ready:
+            wait_ready(client)
+        return client
+
+    yield make
+    for client in opened:
+        client.__exit__(None, None, None)
+
+
+@pytest.fixture(scope="session")
+def app_client(random_bundle: Path):
+    """A TestClient on the real OnnxEngine and the random bundle."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    with TestClient(create_app(Settings(bundle_path=random_bundle, intra_op_threads=1))) as client:
+        wait_ready(client)
+        yield client
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class LiveServer:
+    """uvicorn serving an app on 127.0.0.1:<free port> in a thread."""
+
+    def __init__(self, app) -> None:
+        import uvicorn
+
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning",
+                                                    lifespan="on"))
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> "LiveServer":
+        import httpx
+
+        self.thread.start()
+        deadline = time.perf_counter() + 30
+        while time.perf_counter() < deadline:
+            try:
+                if httpx.get(self.url + "/health", timeout=2).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            time.sleep(0.05)
+        raise AssertionError(f"uvicorn on {self.url} did not become ready")
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(10)
+
+
+@pytest.fixture(scope="session")
+def live_server(random_bundle: Path) -> Iterator[LiveServer]:
+    """The real app (OnnxEngine, random bundle) on a real uvicorn, with an API key."""
+    from service.app import create_app
+    from service.settings import Settings
+
+    app = create_app(Settings(bundle_path=random_bundle, intra_op_threads=1, api_key="test-key"))
+    with LiveServer(app) as server:
+        yield server

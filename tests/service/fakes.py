@@ -1,0 +1,54 @@
+"""Stand-in engines for testing the HTTP layer (the real OnnxEngine is tested end to end on a bundle elsewhere)."""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Sequence
+
+import numpy as np
+
+from motion.skeleton import SMPL22
+from service.engine.types import (GenerationCancelled, GenerationRequest, ModelLimits, Motion, SegmentSpan,
+                                  tokens_for_duration)
+
+FAKE_LIMITS = ModelLimits(
+    name="fake", version="0.0.1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=64,
+    default_guidance=2.5, unconditional_branch=True, length_conditioning=True, skeleton="smpl22",
+    joint_names=tuple(SMPL22.joint_names), parents=tuple(SMPL22.parents))
+
+
+class FakeEngine:
+    """Seeded random-walk joints with the real segment arithmetic; optional delay or gate to simulate slowness."""
+
+    def __init__(self, limits: ModelLimits = FAKE_LIMITS, delay_s: float = 0.0,
+                 gate: threading.Event | None = None) -> None:
+        self.limits = limits
+        self.delay_s = delay_s
+        self.gate = gate
+        self.batches: list[int] = []
+
+    def generate_batch(self, requests: Sequence[GenerationRequest]) -> list[Motion | BaseException]:
+        self.batches.append(len(requests))
+        if self.gate is not None:
+            self.gate.wait(30)
+        deadline = time.perf_counter() + self.delay_s
+        while time.perf_counter() < deadline:
+            if all(r.cancelled for r in requests):
+                break
+            time.sleep(0.005)
+        return [self._one(r) for r in requests]
+
+    def _one(self, request: GenerationRequest) -> Motion | BaseException:
+        if request.cancelled:
+            return GenerationCancelled("cancelled")
+        rng = np.random.default_rng(request.seed)
+        spans, start = [], 0
+        for segment in request.segments:
+            tokens = (tokens_for_duration(segment.duration) if segment.duration is not None
+                      else int(rng.integers(1, self.limits.max_tokens + 1)))
+            spans.append(SegmentSpan(segment.text, start, start + 4 * tokens))
+            start += 4 * tokens
+        joints = np.asarray(SMPL22.offsets, dtype=np.float32)[None].cumsum(axis=1).repeat(start, 0)
+        joints = joints + rng.normal(0, 0.01, joints.shape).astype(np.float32)
+        warnings = [] if request.guidance == 1.0 or self.limits.unconditional_branch else ["no unconditional branch"]
+        return Motion(joints=joints, fps=20, segments=spans, seed=request.seed, tokens=start // 4, warnings=warnings)

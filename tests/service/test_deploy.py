@@ -1,0 +1,111 @@
+"""The container files agree with the tested local setup (no Docker engine here): entrypoint = `t2m serve`,
+health checks on /health, non-root runtime without torch, nginx in front of the replicas."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from tests.service.conftest import REPO
+
+ENTRYPOINT = ["t2m", "serve", "--host", "0.0.0.0", "--port", "8000"]
+
+
+def _dockerfile() -> str:
+    return (REPO / "Dockerfile").read_text()
+
+
+def _instruction(text: str, name: str) -> list[str]:
+    """Every instruction `name` of the Dockerfile, continuation lines joined."""
+    joined = re.sub(r"\\\n\s*", " ", text)
+    return [line[len(name):].strip() for line in joined.splitlines() if line.startswith(name + " ")]
+
+
+def test_entrypoint_is_the_local_serve_command():
+    (entrypoint,) = _instruction(_dockerfile(), "ENTRYPOINT")
+    assert json.loads(entrypoint) == ENTRYPOINT
+    from cli.main import build_parser
+
+    args = build_parser(ENTRYPOINT[1]).parse_args(ENTRYPOINT[1:])
+    assert args.command == "serve" and args.host == "0.0.0.0" and args.port == 8000
+    scripts = re.search(r"\[project\.scripts\]\s*t2m = \"([\w.:]+)\"", (REPO / "pyproject.toml").read_text())
+    assert scripts and scripts.group(1) == "cli.main:main"
+
+
+def test_dockerfile_is_multistage_non_root_with_model_and_healthcheck():
+    text = _dockerfile()
+    stages = _instruction(text, "FROM")
+    assert len(stages) == 2 and stages[0].endswith("AS builder") and stages[1].endswith("AS runtime")
+    runtime = text.split(stages[1])[1]
+    assert "torch" not in " ".join(_instruction(runtime, "RUN"))
+    users = _instruction(runtime, "USER")
+    assert users and users[-1] not in ("root", "0")
+    assert any("models/default" in line for line in _instruction(runtime, "COPY"))
+    (health,) = _instruction(text, "HEALTHCHECK")
+    assert "http://127.0.0.1:8000/health" in health
+    assert "T2M_MODEL_DIR=/app/models/default" in text
+    ignored = (REPO / ".dockerignore").read_text().split()
+    assert "!models/default" in ignored and "tests" in ignored
+
+
+def _health_url(service: dict) -> str:
+    test = " ".join(service["healthcheck"]["test"])
+    match = re.search(r"http://127\.0\.0\.1(?::(\d+))?(/\w+)", test)
+    assert match, test
+    return match.group(2)
+
+
+def test_compose_file():
+    compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())
+    service = compose["services"]["t2m"]
+    assert service["build"] == "."
+    assert _health_url(service) == "/health"
+    model_dir = service["environment"]["T2M_MODEL_DIR"]
+    mounts = [volume.split(":")[1] for volume in service["volumes"]]
+    assert any(model_dir.startswith(mount) for mount in mounts)
+    assert service["ports"][0].endswith(":8000")
+    assert "entrypoint" not in service and "command" not in service     # the image's own `t2m serve`
+
+
+def test_scale_compose_and_nginx():
+    compose = yaml.safe_load((REPO / "docker-compose.scale.yml").read_text())
+    replicas, nginx = compose["services"]["t2m"], compose["services"]["nginx"]
+    assert str(replicas["deploy"]["replicas"]).startswith("${T2M_REPLICAS") and "ports" not in replicas
+    assert _health_url(replicas) == "/health"
+    assert nginx["depends_on"]["t2m"]["condition"] == "service_healthy"
+    source, target = nginx["volumes"][0].split(":")[:2]
+    assert (REPO / source).is_file() and target == "/etc/nginx/nginx.conf"
+    conf = (REPO / "deploy" / "nginx.conf").read_text()
+    assert re.search(r"server t2m:8000\b", conf)
+    from service.settings import Settings
+
+    limit = re.search(r"client_max_body_size (\d+)k;", conf)
+    assert limit and int(limit.group(1)) * 1024 == Settings().max_body_bytes
+    read_timeout = int(re.search(r"proxy_read_timeout (\d+)s;", conf).group(1))
+    assert read_timeout > Settings().request_timeout_s
+
+
+@pytest.mark.clients
+def test_nginx_accepts_the_config(tmp_path):
+    if shutil.which("nginx") is None:
+        pytest.skip("nginx is not installed")
+    conf = (REPO / "deploy" / "nginx.conf").read_text().replace("server t2m:8000", "server 127.0.0.1:8000")
+    (tmp_path / "nginx.conf").write_text(conf)
+    result = subprocess.run(["nginx", "-t", "-c", str(tmp_path / "nginx.conf"), "-g", f"pid {tmp_path}/n.pid;"],
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+
+
+def test_runtime_imports_need_no_torch():
+    """What the image runs (`t2m` parser, app, engine, formats, SDK) imports with torch made unimportable."""
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from cli.main import build_parser; build_parser('serve'); build_parser('generate'); build_parser('motion')\n"
+            "import service.app, service.engine.engine, service.formats, motion.gltf, motion.bvh_export, client\n"
+            "print('ok')")
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr[-2000:]

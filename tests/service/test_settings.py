@@ -1,0 +1,47 @@
+"""Settings come from T2M_* environment variables (or arguments), with the embedded model as the default bundle."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from service.settings import Settings, default_bundle_path
+from tests.service.conftest import REPO
+
+
+def test_defaults(monkeypatch):
+    for name in ("T2M_MODEL_DIR", "T2M_BUNDLE_PATH", "T2M_API_KEY", "T2M_CORS_ORIGINS"):
+        monkeypatch.delenv(name, raising=False)
+    settings = Settings()
+    assert settings.bundle_path == default_bundle_path() == REPO / "models" / "default"
+    assert settings.api_key is None and settings.cors_origins == []
+    assert settings.max_queue >= 1 and settings.request_timeout_s > 0 and settings.max_body_bytes >= 1024
+
+
+def test_environment(monkeypatch):
+    monkeypatch.setenv("T2M_MODEL_DIR", "/models/mine")
+    monkeypatch.setenv("T2M_MAX_QUEUE", "3")
+    monkeypatch.setenv("T2M_REQUEST_TIMEOUT_S", "12.5")
+    monkeypatch.setenv("T2M_API_KEY", "zq-secret-91")
+    monkeypatch.setenv("T2M_CORS_ORIGINS", "https://a.example, https://b.example")
+    monkeypatch.setenv("T2M_INTRA_OP_THREADS", "2")
+    settings = Settings()
+    assert settings.bundle_path == Path("/models/mine")
+    assert settings.max_queue == 3 and settings.request_timeout_s == 12.5 and settings.intra_op_threads == 2
+    assert settings.api_key.get_secret_value() == "zq-secret-91" and "zq-secret-91" not in repr(settings)
+    assert settings.cors_origins == ["https://a.example", "https://b.example"]
+    monkeypatch.setenv("T2M_BUNDLE_PATH", "/models/other")          # the explicit name wins over the alias
+    assert Settings().bundle_path == Path("/models/other")
+
+
+def test_empty_api_key_means_none(monkeypatch):
+    monkeypatch.setenv("T2M_API_KEY", "")
+    assert Settings().api_key is None
+
+
+@pytest.mark.parametrize("field, value", [("max_queue", 0), ("request_timeout_s", 0), ("max_body_bytes", 10),
+                                          ("engine_workers", 0), ("intra_op_threads", -1)])
+def test_bad_values_are_refused_naming_the_field(field, value):
+    with pytest.raises(ValidationError, match=field):
+        Settings(**{field: value})
