@@ -1,0 +1,198 @@
+"""`t2m import t2m-gpt` on checkpoints carrying exactly the released key names (scaled down, and full size as a
+slow test): strict loads, inferred sizes, and end-to-end parity of the bundle with a PyTorch forward of the same
+weights (greedy codes by full-prefix recomputation, decoded features)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cli.main import main as t2m
+from export.bundle import build_random_bundle
+from export.graph_export import ort_session
+from export.parity import ort_greedy_rollout
+from export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
+from model.gpt import GPTConfig, MotionGPT
+from model.vqvae import MotionVQVAE, VQConfig
+from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
+
+SMALL_VQ = {"width": 64, "code_dim": 32, "nb_code": 64, "down_t": 2, "depth": 3}
+SMALL_GPT = {"codebook": 64, "embed": 128, "layers": (2, 2), "block": 51, "text_dim": 512}
+
+try:
+    import open_clip  # noqa: F401
+
+    HAVE_OPEN_CLIP = True
+except ImportError:
+    HAVE_OPEN_CLIP = False
+
+
+@pytest.fixture(scope="module")
+def clip_sized_text_bundle(tmp_path_factory) -> Path:
+    """A bundle whose (tiny random) text graph has CLIP's 512 dims: the --text-encoder-bundle source in tests."""
+    return build_random_bundle(tmp_path_factory.mktemp("text") / "b", text_dim=512, codebook_size=16)
+
+
+@pytest.fixture(scope="module")
+def small_release(tmp_path_factory) -> dict[str, Path]:
+    vq = release_vq_state(**SMALL_VQ, seed=1)
+    gpt = release_gpt_state(**SMALL_GPT, seed=2, std=0.05)
+    return write_release_files(tmp_path_factory.mktemp("release"), vq, gpt)
+
+
+@torch.no_grad()
+def reference_rollout(gpt_state: dict, config: GPTConfig, cond: np.ndarray, steps: int) -> np.ndarray:
+    """T2M-GPT's way: batch 1, the whole prefix recomputed every step, greedy (End masked for a fixed length)."""
+    gpt = MotionGPT(config).eval()
+    gpt.load_state_dict(gpt_state, strict=True)
+    codes = torch.zeros(1, 0, dtype=torch.long)
+    for _ in range(steps):
+        logits = gpt(torch.from_numpy(cond), codes)[:, -1, : config.codebook_size]
+        codes = torch.cat([codes, logits.argmax(-1, keepdim=True)], dim=1)
+    return codes.numpy()
+
+
+def check_end_to_end(bundle: Path, files: dict[str, Path], vq_sizes: dict, gpt_sizes: dict, steps: int) -> None:
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    gpt_state = torch.load(files["net_best_fid.pth"], weights_only=True)["trans"]
+    vq_state = strip_prefix(torch.load(files["net_last.pth"], weights_only=True)["net"], "vqvae.")
+    config = GPTConfig(codebook_size=gpt_sizes["codebook"], embed=gpt_sizes["embed"],
+                       n_head=gpt_sizes["embed"] // 64, n_layer_base=gpt_sizes["layers"][0],
+                       n_layer_head=gpt_sizes["layers"][1], block_size=gpt_sizes["block"],
+                       text_dim=gpt_sizes["text_dim"], length_conditioning=False)
+    cond = np.random.default_rng(3).normal(size=(1, gpt_sizes["text_dim"])).astype(np.float32)
+    expected_codes = reference_rollout(gpt_state, config, cond, steps)
+    g = manifest["gpt"]
+    rollout = ort_greedy_rollout(ort_session(bundle / "gpt_step.onnx"), cond, np.zeros(1, np.int64),
+                                 (g["n_layer"], g["n_head"], g["head_dim"]), steps, manifest["end_id"], guidance=1.0)
+    np.testing.assert_array_equal(rollout.codes, expected_codes)
+    assert len(set(expected_codes[0].tolist())) > 3  # a rollout that visits several codes, not one repeated
+
+    vq = MotionVQVAE(VQConfig(**{k: vq_sizes[k] for k in ("width", "code_dim", "nb_code", "down_t", "depth")})).eval()
+    vq.load_state_dict(vq_state, strict=True)
+    mean, std = np.load(files["mean.npy"]), np.load(files["std.npy"])
+    with torch.no_grad():
+        expected = (vq.decode(torch.from_numpy(expected_codes)) * torch.from_numpy(std) + torch.from_numpy(mean)).numpy()
+    (features,) = ort_session(bundle / "decoder.onnx").run(None, {"codes": expected_codes})
+    assert features.shape == (1, 4 * steps, 263)
+    assert np.abs(features - expected).max() <= 1e-4
+
+
+def test_release_key_names_load_strictly_with_inferred_sizes():
+    vq_state = strip_prefix(release_vq_state(**SMALL_VQ), "vqvae.")
+    config = infer_vq_config(vq_state)
+    assert (config.width, config.code_dim, config.nb_code, config.down_t, config.depth) == (64, 32, 64, 2, 3)
+    MotionVQVAE(config).load_state_dict(vq_state, strict=True)
+    gpt_state = release_gpt_state(**SMALL_GPT)
+    config = infer_gpt_config(gpt_state)
+    assert (config.codebook_size, config.embed, config.n_head, config.n_layer_base, config.n_layer_head,
+            config.block_size, config.text_dim, config.ff_rate, config.length_conditioning) == \
+        (64, 128, 2, 2, 2, 51, 512, 4, False)
+    MotionGPT(config).load_state_dict(gpt_state, strict=True)  # pos_embedding.weight and attn.mask accepted
+    assert infer_gpt_config(gpt_state, heads=4).n_head == 4
+
+
+def test_import_via_cli_gives_a_verified_bundle_matching_pytorch(small_release, clip_sized_text_bundle, tmp_path,
+                                                                  capsys):
+    f = small_release
+    out = tmp_path / "imported"
+    code = t2m(["import", "t2m-gpt", "--vq", str(f["net_last.pth"]), "--gpt", str(f["net_best_fid.pth"]),
+                "--mean", str(f["mean.npy"]), "--std", str(f["std.npy"]),
+                "--text-encoder-bundle", str(clip_sized_text_bundle), "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["gpt"] == {"n_layer": 4, "n_head": 2, "head_dim": 64, "block_size": 51,
+                               "length_conditioning": False, "unconditional_branch": False, "default_guidance": 1.0}
+    assert manifest["codebook_size"] == 64 and manifest["end_id"] == 64 and manifest["max_tokens"] == 50
+    assert manifest["training_data"]["name"] == "HumanML3D"
+    assert [i.name for i in ort_session(out / "gpt_step.onnx").get_inputs()] == ["cond", "token", "position", "past_kv"]
+    np.testing.assert_array_equal(np.load(out / "mean.npy"), np.load(f["mean.npy"]))
+    assert "assumed embed / 64" in (out / "MODEL_CARD.md").read_text()
+    check_end_to_end(out, f, {**SMALL_VQ}, SMALL_GPT, steps=50)
+
+
+def test_import_refuses_without_a_text_encoder(small_release, tmp_path):
+    f = small_release
+    with pytest.raises(ValueError, match="needs CLIP ViT-B/32 weights") as error:
+        import_t2m_gpt(f["net_last.pth"], f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], tmp_path / "o")
+    assert str(error.value) == CLIP_REQUIRED
+
+
+@pytest.mark.skipif(HAVE_OPEN_CLIP, reason="open_clip is installed: --clip works")
+def test_clip_without_open_clip_names_the_extra(small_release, tmp_path, capsys):
+    f = small_release
+    weights = tmp_path / "ViT-B-32.pt"
+    weights.write_bytes(b"not used")
+    code = t2m(["import", "t2m-gpt", "--vq", str(f["net_last.pth"]), "--gpt", str(f["net_best_fid.pth"]),
+                "--mean", str(f["mean.npy"]), "--std", str(f["std.npy"]), "--clip", str(weights), "-o", str(tmp_path / "o")])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "open_clip_torch not installed (optional extra [clip]" in err
+
+
+def test_bad_checkpoints_are_named(tmp_path, small_release, clip_sized_text_bundle):
+    f = small_release
+    wrong = tmp_path / "wrong.pth"
+    torch.save({"model": {}}, wrong)
+    kwargs = {"text_encoder_bundle": clip_sized_text_bundle}
+    with pytest.raises(ValueError, match=r"wrong.pth: no key 'net'"):
+        import_t2m_gpt(wrong, f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], tmp_path / "o", **kwargs)
+    state = torch.load(f["net_best_fid.pth"], weights_only=True)["trans"]
+    del state["trans_head.head.weight"]
+    torch.save({"trans": state}, wrong)
+    with pytest.raises(ValueError, match=r"wrong.pth: weights do not fit.*trans_head.head.weight"):
+        import_t2m_gpt(f["net_last.pth"], wrong, f["mean.npy"], f["std.npy"], tmp_path / "o", **kwargs)
+    with pytest.raises(ValueError, match="--heads 3 does not divide the embedding size 128"):
+        import_t2m_gpt(f["net_last.pth"], f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], tmp_path / "o",
+                       heads=3, **kwargs)
+    import argparse
+
+    torch.save({"net": torch.load(f["net_last.pth"], weights_only=True)["net"], "args": argparse.Namespace(lr=1)}, wrong)
+    with pytest.raises(ValueError, match=r"wrong.pth: not loadable as plain tensors .*--allow-pickle"):
+        import_t2m_gpt(wrong, f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], tmp_path / "o", **kwargs)
+    np.save(tmp_path / "short.npy", np.zeros(10, np.float32))
+    with pytest.raises(ValueError, match=r"short.npy: expected \[263\] values"):
+        import_t2m_gpt(f["net_last.pth"], f["net_best_fid.pth"], tmp_path / "short.npy", f["std.npy"],
+                       tmp_path / "o", **kwargs)
+
+
+@pytest.mark.clip
+@pytest.mark.skipif(not HAVE_OPEN_CLIP,
+                    reason="open_clip_torch not installed (optional extra [clip]; needs torch==2.14.1+torchvision==0.29.1)")
+def test_import_with_a_random_clip_checkpoint(small_release, tmp_path):
+    import open_clip
+
+    from export.parity import text_parity
+    from model.text_encoders import ClipEncoder
+
+    model = open_clip.create_model("ViT-B-32", pretrained=None)  # random weights, no download
+    weights = tmp_path / "ViT-B-32.pt"
+    torch.save(model.state_dict(), weights)
+    f = small_release
+    out = tmp_path / "imported"
+    manifest, checks = import_t2m_gpt(f["net_last.pth"], f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], out,
+                                      clip_weights=weights)
+    assert manifest["text_encoder"]["kind"] == "clip" and manifest["text_encoder"]["dim"] == 512
+    assert checks.parity["text_encoder"]["max_abs_diff"] <= 1e-4
+    report = text_parity(ClipEncoder(weights), out / "text_encoder.onnx", out / "tokenizer.json")
+    assert report.max_abs_diff <= 1e-4
+
+
+@pytest.mark.slow
+def test_full_release_shapes_import_end_to_end(tmp_path, clip_sized_text_bundle):
+    """228M-parameter GPT + 19.7M VQ with the release's shapes (random values): ~1 GB bundle, a few minutes."""
+    vq = release_vq_state(seed=1)
+    gpt = release_gpt_state(seed=2, std=0.02)
+    assert len(vq) == 67 and len(gpt) == 314
+    files = write_release_files(tmp_path / "release", vq, gpt)
+    del vq, gpt
+    out = tmp_path / "imported"
+    manifest, checks = import_t2m_gpt(files["net_last.pth"], files["net_best_fid.pth"], files["mean.npy"],
+                                      files["std.npy"], out, text_encoder_bundle=clip_sized_text_bundle)
+    assert manifest["gpt"]["n_layer"] == 18 and manifest["gpt"]["n_head"] == 16 and manifest["gpt"]["head_dim"] == 64
+    assert checks.parity["gpt_step"]["codes_identical"] and checks.parity["gpt_step"]["max_abs_logit_diff"] <= 1e-4
+    check_end_to_end(out, files, {"width": 512, "code_dim": 512, "nb_code": 512, "down_t": 2, "depth": 3},
+                     {"codebook": 512, "embed": 1024, "layers": (9, 9), "block": 51, "text_dim": 512}, steps=50)
