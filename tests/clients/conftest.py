@@ -1,0 +1,45 @@
+"""Fixtures for the real-client suite (marked `clients`): our exports of the real HumanML3D sample, on disk.
+
+Install the clients with scripts/install_clients.sh; each test skips with the reason when its client is absent.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def yaw(joints: np.ndarray, degrees: float) -> np.ndarray:
+    """The motion turned about the vertical axis (through the origin)."""
+    a = np.radians(degrees)
+    rotation = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    return joints @ rotation.T
+
+
+def full_turn(joints: np.ndarray) -> np.ndarray:
+    """The motion with its heading turning through 360 degrees over the clip, about the pelvis."""
+    angles = np.linspace(0.0, 360.0, len(joints))
+    centre = joints[:, :1] * np.array([1.0, 0.0, 1.0])
+    return np.stack([yaw(frame - c, a) + c for frame, c, a in zip(joints, centre, angles)])
+
+
+@pytest.fixture(scope="session")
+def sample_joints() -> np.ndarray:
+    """[170, 22, 3] joints of HumanML3D clip 012314 (metres)."""
+    shared = Path(os.environ.get("T2M_SHARED", REPO / ".." / "shared")).resolve()
+    path = shared / "data" / "humanml3d-sample" / "new_joints_012314.npy"
+    if not path.is_file():
+        pytest.skip(f"HumanML3D sample not found at {path} (set T2M_SHARED to the shared folder)")
+    return np.load(path).astype(np.float64)
+
+
+@pytest.fixture(scope="session")
+def motions(sample_joints) -> dict[str, np.ndarray]:
+    """The clips every client reads: a full 360-degree turn, and the mirrored clip facing backwards."""
+    from motion.transforms import mirror_joints
+
+    return {"turn": full_turn(sample_joints), "mirrored_backwards": yaw(mirror_joints(sample_joints), 180.0)}
