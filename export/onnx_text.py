@@ -20,15 +20,33 @@ from export.graph_export import export_graph
 
 def export_text_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor, example_mask: torch.Tensor) -> Path:
     """Write text_encoder.onnx from ``module(input_ids, attention_mask) -> [B, Dt]`` (B and L dynamic)."""
-    return export_graph(
+    input_names = ["input_ids", "attention_mask"]
+    path = export_graph(
         module.eval(),
         (example_ids, example_mask),
         path,
-        input_names=["input_ids", "attention_mask"],
+        input_names=input_names,
         output_names=["text_features"],
         dynamic_axes={"input_ids": {0: "batch", 1: "tokens"}, "attention_mask": {0: "batch", 1: "tokens"},
                       "text_features": {0: "batch"}},
     )
+    _restore_dropped_inputs(path, input_names)
+    return path
+
+
+def _restore_dropped_inputs(path: str | Path, names: list[str]) -> None:
+    """Put back inputs the exporter dropped because the module ignores them (CLIP's tower finds the end token
+    without the mask), so that every text graph has the contract's two inputs and is fed the same way."""
+    import onnx
+
+    model = onnx.load(str(path))
+    present = {graph_input.name for graph_input in model.graph.input}
+    missing = [name for name in names if name not in present]
+    if missing:
+        for name in missing:
+            model.graph.input.append(
+                onnx.helper.make_tensor_value_info(name, onnx.TensorProto.INT64, ["batch", "tokens"]))
+        onnx.save(model, str(path))
 
 
 def write_tokenizer(tokenizer, path: str | Path, max_length: int, pad_token: str, pad_id: int) -> Path:  # noqa: ANN001

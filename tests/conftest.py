@@ -33,6 +33,7 @@ BANDAI_TEST_CLIPS = (
     "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_walk-turn-right_masculine_007",  # mislabelled: turns left
     "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_wave-left-hand_youthful_007",
     "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_raise-up-right-hand_active_033",
+    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_wave-both-hands_active_029",
 )
 # dataset-2's JSON sidecars (and label files) sit far later in the archive than its BVH files: BVH only for those.
 BANDAI_TEST_FILES = tuple(f"{clip}{ext}" for clip in BANDAI_TEST_CLIPS

@@ -1,0 +1,41 @@
+"""The `t2m` dispatcher: every command registers, and running one imports only its own module."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cli.main import COMMANDS, build_parser, main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_every_command_registers_with_its_own_name() -> None:
+    parser = build_parser(None)
+    choices = parser._subparsers._group_actions[0].choices  # type: ignore[union-attr]
+    assert set(choices) == set(COMMANDS)
+    for name in COMMANDS:
+        help_text = choices[name].format_help()
+        assert help_text.startswith(f"usage: t2m {name}"), help_text[:80]
+
+
+@pytest.mark.parametrize("command", ["serve", "generate", "motion"])
+def test_runtime_commands_do_not_import_torch(command: str) -> None:
+    code = (
+        "import sys\n"
+        "from cli.main import main\n"
+        f"try:\n    main([{command!r}, '--help'])\nexcept SystemExit:\n    pass\n"
+        "print('torch' in sys.modules)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert result.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_unknown_command_and_no_command_exit_non_zero(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as raised:
+        main(["no-such-command"])
+    assert raised.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
+    assert main([]) == 2
