@@ -156,7 +156,7 @@ def main(args: argparse.Namespace) -> int:
 
     from model.gpt import GPTConfig, MotionGPT
     from model.checkpoint import load_model
-    from model.datasets import TextMotionDataset, open_split
+    from model.datasets import LengthBucketSampler, TextMotionDataset, open_split, trim_padding
     from model.text_encoders import cache_text_features, get_text_encoder
     from model.train_vq import parse_milestones
     from model.training import LoopSettings, infinite, run_training, set_seed, set_threads
@@ -206,7 +206,7 @@ def main(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed + 1)
     val_batches = list(val_loader)[:8]
     torch.manual_seed(args.seed)
-    loader = DataLoader(train_set, batch_size=args.batch_size, shuffle=True, drop_last=len(train_set) >= args.batch_size)
+    loader = DataLoader(train_set, batch_sampler=LengthBucketSampler(train_set.token_counts, args.batch_size))
     settings = LoopSettings(
         steps=args.steps, lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.warmup_steps,
         lr_milestones=parse_milestones(args.lr_milestones), lr_gamma=args.lr_gamma, grad_clip=1.0,
@@ -214,7 +214,7 @@ def main(args: argparse.Namespace) -> int:
     )
 
     def step_fn(net: MotionGPT, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float], int]:
-        tokens = batch["tokens"]
+        tokens = trim_padding(batch["tokens"], config.pad_id)
         inputs = corrupt_codes(tokens[:, :-1], sample_tau(len(tokens), corruption), nb_code)
         cond = drop_condition(batch["cond"], args.cond_drop)
         length = drop_length(batch["length"], args.length_keep) if config.length_conditioning else None
