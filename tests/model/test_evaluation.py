@@ -165,3 +165,18 @@ def test_windows_and_draws():
     assert [len(m) for m in sample.motions] == [196, 36]
     assert sample.tokens == [196 // FRAMES_PER_TOKEN, 9]
     assert sample.captions[1] == "z"
+
+
+def test_mpjpe_root_relative_ignores_a_root_offset_that_global_mpjpe_counts():
+    """Raising the root height channel by 10 cm moves every joint 10 cm up and leaves the pose unchanged."""
+    import numpy as np
+
+    from model.evaluation import mpjpe_mm
+
+    rng = np.random.default_rng(0)
+    real = [rng.normal(size=(24, 263)).astype(np.float32) * 0.05 for _ in range(3)]
+    lifted = [clip.copy() for clip in real]
+    for clip in lifted:
+        clip[:, 3] += 0.1
+    assert abs(mpjpe_mm(real, lifted) - 100.0) < 1e-3
+    assert mpjpe_mm(real, lifted, root_relative=True) < 1e-3
