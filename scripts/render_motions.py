@@ -236,7 +236,9 @@ def _title(text: str, seconds: float, seed: int, probe: str, joints: np.ndarray)
         measured = f"   [pelvis path {path_length(joints):.2f} m]"
     else:
         result = probe_by_name(probe).check(joints)
-        measured = f"   [{result.probe}: {result.value:+.2f} {result.unit}, {'pass' if result.passed else 'FAIL'}]"
+        details = "".join(f", {key.replace('_', ' ')} {value:.2f}" for key, value in result.details.items())
+        measured = (f"   [{result.probe}: {result.value:+.2f} {result.unit}{details}, "
+                    f"{'pass' if result.passed else 'FAIL'}]")
     return f'"{text}"  ({seconds:g} s, seed {seed}){measured}'
 
 

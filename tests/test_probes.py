@@ -256,8 +256,21 @@ def test_runner_cli_refuses_a_bad_bundle_or_probe(random_bundle, tmp_path, capsy
 # ------------------------------------------------------------------ (b) the shipped default model
 
 DEFAULT_MODEL = REPO / "models" / "default"
-MODEL_SEEDS = (0, 1, 2)
+MODEL_SEEDS = (0, 1, 2, 3, 4)          # the runner's default, so these are the model card's numbers
 MODEL_MIN_PASS_RATE = 0.6
+MODEL_MAX_JOIN_P95_RATIO = 1.5         # a join no sharper than 1.5x the segments' own 95th percentile change
+# What the default model (t2m-bandai-minilm 0.1.0) measurably does not do, as its model card says. Strict: if a
+# retrained model passes, the XPASS fails the run and this list (and the card) must be updated.
+KNOWN_FAILURES = {
+    "walk_backward": "walks forward instead (pass rate 0.13; 0.0 even for the training caption 'a person walks "
+                     "backward'): 15 walk-back clips in the data",
+    "turn_left": "turns only for 'turns to her left while walking' (1.0); 'veers round' / 'heads off to the left' "
+                 "0.0 (pass rate 0.33)",
+    "turn_right": "turns only for 'turns to his right while walking' (1.0); 'veers round' / 'heads off to the right' "
+                  "0.0 (pass rate 0.33)",
+    "bow": "bows in about a third of tries (pass rate 0.33): 15 bow clips in the data",
+    "kick": "never kicks (pass rate 0.0; the highest foot lift is 0.1 m): one kick clip in the data",
+}
 
 
 @pytest.fixture(scope="module")
@@ -272,9 +285,32 @@ def default_report():
     return run_probes(engine, MODEL_SEEDS, guidance, progress=False)
 
 
-@pytest.mark.parametrize("name", [spec.name for spec in probes.PROBES])
+@pytest.mark.parametrize("name", [
+    pytest.param(spec.name, marks=pytest.mark.xfail(strict=True, reason=KNOWN_FAILURES[spec.name]))
+    if spec.name in KNOWN_FAILURES else spec.name for spec in probes.PROBES])
 def test_default_model_follows_the_text(default_report, name):
     summary = default_report.probe(name)
     assert summary.pass_rate >= MODEL_MIN_PASS_RATE, (
         f"{name}: pass rate {summary.pass_rate:.2f} < {MODEL_MIN_PASS_RATE} ({summary.rule}); values "
         f"{[round(t.value, 2) for t in summary.trials]}")
+
+
+def test_default_model_stream_joins_are_smooth(default_report):
+    """Per-sentence codes decoded once: a join is no sharper than the segments' own sharpest moments
+    (two real clips pasted together measure over 3)."""
+    ratios = np.asarray(default_report.stream.join_p95_ratios)
+    assert ratios.max() < MODEL_MAX_JOIN_P95_RATIO, ratios
+
+
+@pytest.mark.parametrize("asked, opposite, measure", [
+    ("walk_forward", "walk_backward", lambda t: t.value),
+    ("turn_left", "turn_right", lambda t: t.value),
+    ("raise_right", "raise_left", lambda t: t.details["right_up_fraction"]),
+    ("raise_left", "raise_right", lambda t: t.details["left_up_fraction"]),
+])
+def test_default_model_tells_opposites_apart(default_report, asked, opposite, measure):
+    """Weaker than a pass rate, but it fails for a text-blind model: the asked direction measures more than its
+    opposite (walks further forward, turns further left, lifts that hand more often)."""
+    asked_mean = np.mean([measure(t) for t in default_report.probe(asked).trials])
+    opposite_mean = np.mean([measure(t) for t in default_report.probe(opposite).trials])
+    assert asked_mean > opposite_mean, f"{asked}: {asked_mean:.2f} vs {opposite}: {opposite_mean:.2f}"
