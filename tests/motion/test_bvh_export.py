@@ -8,20 +8,7 @@ from motion.bvh import read_bvh
 from motion.bvh_export import BVH_NAMES, JOINT_CHANNELS, ROOT_CHANNELS, bvh_joint_names, joints_to_bvh
 from motion.skeleton import SMPL22
 from motion.transforms import mirror_joints
-
-
-def yaw(joints: np.ndarray, degrees: float) -> np.ndarray:
-    """The motion turned about the vertical axis (through the origin)."""
-    a = np.radians(degrees)
-    rotation = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    return joints @ rotation.T
-
-
-def full_turn(joints: np.ndarray) -> np.ndarray:
-    """The motion with its heading turning through 360 degrees over the clip, about the pelvis."""
-    angles = np.linspace(0.0, 360.0, len(joints))
-    centre = joints[:, :1] * np.array([1.0, 0.0, 1.0])
-    return np.stack([yaw(frame - c, a) + c for frame, c, a in zip(joints, centre, angles)])
+from tests.headings import full_turn, yaw
 
 
 MIXAMO = ["Hips", "LeftUpLeg", "RightUpLeg", "Spine", "LeftLeg", "RightLeg", "Spine1", "LeftFoot", "RightFoot",
