@@ -18,6 +18,8 @@ apt_packages=()
 command -v blender >/dev/null || apt_packages+=(blender)
 command -v node >/dev/null || apt_packages+=(nodejs)
 command -v npm >/dev/null || apt_packages+=(npm)
+# Debian's Blender runs on the system Python; its glTF importer needs numpy there (a recommended package).
+/usr/bin/python3 -c "import numpy" 2>/dev/null || apt_packages+=(python3-numpy)
 if [ "${#apt_packages[@]}" -gt 0 ]; then
   echo "install_clients.sh: apt-get install ${apt_packages[*]}"
   $sudo apt-get update -q
