@@ -9,6 +9,12 @@ import json
 import sys
 
 import bpy
+import numpy
+
+# Debian's Blender 3.4 glTF importer uses numpy.bool, which numpy 1.24 (Debian's python3-numpy) removed and 2.0
+# brought back; give it the builtin it meant.
+if not hasattr(numpy, "bool"):
+    numpy.bool = bool
 
 kind, source, target, fps = sys.argv[sys.argv.index("--") + 1:][:4]
 fps = int(fps)
