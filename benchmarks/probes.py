@@ -319,8 +319,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     limits = engine.limits
-    guidance = args.guidance if args.guidance is not None else (
-        limits.default_guidance if limits.unconditional_branch else 1.0)
+    guidance = limits.guidance(args.guidance)
     report = run_probes(engine, range(args.seeds), guidance, args.duration, specs, not args.no_stream,
                         bundle=str(Path(args.bundle).resolve()))
     print(format_report(report))

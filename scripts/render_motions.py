@@ -282,8 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     limits = engine.limits
-    guidance = args.guidance if args.guidance is not None else (
-        limits.default_guidance if limits.unconditional_branch else 1.0)
+    guidance = limits.guidance(args.guidance)
     log.info("generating %d motions with seed %d, guidance %g", len(SINGLE_MOTIONS) + 1, args.seed, guidance)
     rows, stream = generated_rows(engine, args.seed, guidance)
     log.info("drawing %s", out_dir := Path(args.out))

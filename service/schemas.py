@@ -165,8 +165,7 @@ def model_limit_errors(request: GenerateRequest, limits: ModelLimits) -> list[di
 
 def to_generation_request(request: GenerateRequest, limits: ModelLimits, seed: int) -> GenerationRequest:
     """Resolve the request's defaults against the model: the engine gets every choice made."""
-    guidance = request.guidance if request.guidance is not None else (
-        limits.default_guidance if limits.unconditional_branch else 1.0)
+    guidance = limits.guidance(request.guidance)
     return GenerationRequest(
         segments=[SegmentRequest(text=s.text, duration=s.duration) for s in request.segments],
         seed=seed, guidance=float(guidance), temperature=float(request.temperature), top_k=request.top_k)

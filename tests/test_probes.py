@@ -281,7 +281,7 @@ def default_report():
     from service.engine.engine import OnnxEngine
 
     engine = OnnxEngine.load(DEFAULT_MODEL)
-    guidance = engine.limits.default_guidance if engine.limits.unconditional_branch else 1.0
+    guidance = engine.limits.guidance()
     return run_probes(engine, MODEL_SEEDS, guidance, progress=False)
 
 

@@ -41,6 +41,13 @@ class ModelLimits:
     parents: tuple[int, ...] = ()
     details: dict = field(default_factory=dict)   # extra facts shown by /health (licence, text encoder, ...)
 
+    def guidance(self, requested: float | None = None) -> float:
+        """The guidance scale to use: the requested one, else the model's default (1 = off for a model without a
+        trained unconditional branch, whatever its manifest says)."""
+        if requested is not None:
+            return float(requested)
+        return float(self.default_guidance if self.unconditional_branch else 1.0)
+
     @property
     def max_segment_seconds(self) -> float:
         """The length of a free (duration null) segment at most: max_tokens tokens."""

@@ -125,3 +125,14 @@ def test_openapi_is_generated_from_the_schemas(client):
     assert request_schema["additionalProperties"] is False
     assert {"segments", "format", "seed", "guidance", "temperature", "top_k"} == set(request_schema["properties"])
     assert "MotionResponse" in schema["components"]["schemas"]
+
+
+def test_model_limits_resolve_the_guidance_default():
+    from service.engine.types import ModelLimits
+
+    guided = ModelLimits(name="m", version="1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=512,
+                         default_guidance=3.0, unconditional_branch=True)
+    unguided = ModelLimits(name="m", version="1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=512,
+                           default_guidance=3.0, unconditional_branch=False)
+    assert guided.guidance() == 3.0 and guided.guidance(1.5) == 1.5
+    assert unguided.guidance() == 1.0 and unguided.guidance(2.0) == 2.0
