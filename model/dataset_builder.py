@@ -82,7 +82,7 @@ class BuildOptions:
     limit: int | None = None
     min_frames: int = MIN_FRAMES
     max_frames: int = MAX_FRAMES
-    captions_per_clip: int = 6
+    captions_per_clip: int = 8
     overwrite: bool = False
     progress: bool = True
 

@@ -173,15 +173,24 @@ class LengthBucketSampler(Sampler[list[int]]):
 
     Each epoch shuffles all items, cuts the order into pools of ``pool_batches`` batches, sorts each pool by
     length and splits it into batches, then shuffles the batches: every item once per epoch, random
-    neighbours, and little padding (clips here range from 5 to 50 tokens)."""
+    neighbours, and little padding (clips here range from 5 to 50 tokens). With ``weights`` (per-item
+    probabilities, e.g. model.balancing.balanced_weights) an epoch is instead as many items drawn with
+    replacement by those weights, bucketed the same way."""
 
     def __init__(self, token_counts: Sequence[int], batch_size: int, pool_batches: int = 32,
-                 generator: torch.Generator | None = None) -> None:
+                 generator: torch.Generator | None = None, weights: Sequence[float] | None = None) -> None:
         self.token_counts = np.asarray(token_counts)
         self.batch_size, self.pool_batches, self.generator = batch_size, pool_batches, generator
+        if weights is not None and len(weights) != len(self.token_counts):
+            raise ValueError(f"weights: {len(weights)} values for {len(self.token_counts)} items")
+        self.weights = None if weights is None else torch.as_tensor(np.asarray(weights, dtype=np.float64))
 
     def __iter__(self):  # noqa: ANN204
-        order = torch.randperm(len(self.token_counts), generator=self.generator).numpy()
+        count = len(self.token_counts)
+        if self.weights is None:
+            order = torch.randperm(count, generator=self.generator).numpy()
+        else:
+            order = torch.multinomial(self.weights, count, replacement=True, generator=self.generator).numpy()
         pool = self.batch_size * self.pool_batches
         batches = []
         for start in range(0, len(order), pool):

@@ -123,6 +123,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vel-weight", type=float, default=0.5)
     parser.add_argument("--commit-weight", type=float, default=None,
                         help="weight of the quantiser loss (default 0.02 for ema_reset/residual, 1.0 for plain)")
+    parser.add_argument("--balance-power", type=float, default=1.0,
+                        help="sample windows so each action's mass ~ (its clip count)**p: 1 natural, 0 uniform "
+                             "over actions (model.balancing)")
     parser.add_argument("--log-every", type=int, default=50)
     parser.add_argument("--val-every", type=int, default=1000)
     parser.add_argument("--save-every", type=int, default=1000)
@@ -139,6 +142,24 @@ def parse_milestones(text: str) -> tuple[float, ...]:
     if any(not 0.0 < v <= 1.0 for v in values):
         raise ValueError(f"--lr-milestones must be fractions in (0, 1], got {text!r}")
     return values
+
+
+def window_loader(train_set: Any, batch_size: int, balance_power: float, out: Path) -> Any:
+    """Shuffled windows, or (balance_power < 1) windows drawn with action-balanced weights, logged to
+    <out>/action_masses.json so the run records how often each action was seen."""
+    import json
+
+    from torch.utils.data import DataLoader, WeightedRandomSampler
+
+    from model.balancing import action_masses, balanced_weights
+
+    drop_last = len(train_set) >= batch_size
+    if balance_power >= 1.0:
+        return DataLoader(train_set, batch_size=batch_size, shuffle=True, drop_last=drop_last)
+    weights = balanced_weights(train_set.ids, balance_power)
+    (out / "action_masses.json").write_text(json.dumps(action_masses(train_set.ids, weights), indent=1))
+    sampler = WeightedRandomSampler(weights.tolist(), num_samples=len(train_set), replacement=True)
+    return DataLoader(train_set, batch_size=batch_size, sampler=sampler, drop_last=drop_last)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -178,7 +199,7 @@ def main(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / "mean.npy", mean)
     np.save(out / "std.npy", std)
-    loader = DataLoader(train_set, batch_size=args.batch_size, shuffle=True, drop_last=len(train_set) >= args.batch_size)
+    loader = window_loader(train_set, args.batch_size, args.balance_power, out)
     settings = LoopSettings(
         steps=args.steps, lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.warmup_steps,
         lr_milestones=parse_milestones(args.lr_milestones), lr_gamma=args.lr_gamma, grad_clip=None,
@@ -191,7 +212,7 @@ def main(args: argparse.Namespace) -> int:
 
     data_info: dict[str, Any] = {
         "data_dir": str(Path(args.data).resolve()), "train_clips": len(train_set), "val_windows": len(val_windows),
-        "window": args.window, "batch_size": args.batch_size, "seed": args.seed,
+        "window": args.window, "batch_size": args.batch_size, "seed": args.seed, "balance_power": args.balance_power,
         "loss": {"vel_weight": args.vel_weight, "commit_weight": args.commit_weight},
         "normalization": {"mean": "mean.npy", "std": "std.npy"},
     }

@@ -208,3 +208,22 @@ def test_cli_trains_vq_then_gpt_for_three_steps(data_dir, tmp_path, monkeypatch)
     record = json.loads((gpt_run / "config.json").read_text())
     assert record["data"]["text_encoder"]["kind"] == "minilm" and record["data"]["vq_run"] == str(vq_run.resolve())
     assert (gpt_run / "text_features.npz").is_file() and (gpt_run / "codes_train.npz").is_file()
+
+
+def test_cli_balanced_sampling_is_recorded(data_dir, tmp_path, monkeypatch):
+    """--balance-power < 1 trains both stages with action-balanced draws and records the masses it used."""
+    from cli.main import main
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    vq_run, gpt_run = tmp_path / "vq", tmp_path / "gpt"
+    common = ["--steps", "2", "--batch-size", "4", "--log-every", "1", "--val-every", "2", "--save-every", "2",
+              "--threads", "1", "--balance-power", "0.3"]
+    assert main(["train", "vq", "--data", str(data_dir), "--out", str(vq_run), "--width", "16", "--code-dim", "8",
+                 "--nb-code", "16", *common]) == 0
+    assert main(["train", "gpt", "--data", str(data_dir), "--vq", str(vq_run), "--out", str(gpt_run),
+                 "--embed", "32", "--layers", "2", "--heads", "2", "--max-tokens", "20", *common]) == 0
+    for run in (vq_run, gpt_run):
+        masses = json.loads((run / "action_masses.json").read_text())
+        assert masses and sum(masses.values()) == pytest.approx(1.0)
+    assert json.loads((vq_run / "config.json").read_text())["data"]["balance_power"] == 0.3
+    assert json.loads((gpt_run / "config.json").read_text())["data"]["training"]["balance_power"] == 0.3

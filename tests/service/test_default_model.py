@@ -36,8 +36,8 @@ def test_default_model_makes_a_plausible_walk(default_engine):
     assert walked > 0.3, f"the pelvis moved {walked:.2f} m during 'walks forward'"
 
 
-@pytest.mark.xfail(strict=True, reason="known failure of t2m-bandai-minilm 0.1.0: joints recovered from its generated "
-                   "features keep bone lengths only within 5.5 cm (std, forearms; 1.2 cm for legs). The BVH and glb "
+@pytest.mark.xfail(strict=True, reason="known failure of the default model (0.1.0 and 0.2.0): joints recovered from its "
+                   "generated features do not keep one length per bone (std over 3 cm). The BVH and glb "
                    "exports are rigid (IK onto the motion's own bone lengths); forcing one length per bone on the "
                    "JSON joints lowered raised wrists and the raise-hand probes, so it is not done.")
 def test_default_model_keeps_bone_lengths(default_engine):
