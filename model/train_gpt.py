@@ -171,7 +171,7 @@ def main(args: argparse.Namespace) -> int:
     for name in ("steps", "batch_size", "layers", "heads", "max_tokens"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1")
-    for name in ("cond_drop", "length_keep"):
+    for name in ("cond_drop", "length_keep", "balance_power"):
         if not 0.0 <= getattr(args, name) <= 1.0:
             raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1]")
     out = Path(args.out)

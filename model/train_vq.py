@@ -175,6 +175,8 @@ def main(args: argparse.Namespace) -> int:
     for name in ("steps", "batch_size"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1")
+    if not 0.0 <= args.balance_power <= 1.0:
+        raise ValueError(f"--balance-power must be in [0, 1], got {args.balance_power}")
     if args.commit_weight is None:
         args.commit_weight = 1.0 if args.quantizer == "plain" else 0.02
     out = Path(args.out)

@@ -227,3 +227,7 @@ def test_cli_balanced_sampling_is_recorded(data_dir, tmp_path, monkeypatch):
         assert masses and sum(masses.values()) == pytest.approx(1.0)
     assert json.loads((vq_run / "config.json").read_text())["data"]["balance_power"] == 0.3
     assert json.loads((gpt_run / "config.json").read_text())["data"]["training"]["balance_power"] == 0.3
+    bad = ["--steps", "1", "--threads", "1", "--balance-power", "1.5"]
+    assert main(["train", "vq", "--data", str(data_dir), "--out", str(tmp_path / "bad_vq"), *bad]) == 2
+    assert main(["train", "gpt", "--data", str(data_dir), "--vq", str(vq_run), "--out", str(tmp_path / "bad_gpt"),
+                 *bad]) == 2
