@@ -11,18 +11,23 @@ swapped, pieces ``..._p1``); ids of another form (HumanML3D's numbers, synthetic
 """
 from __future__ import annotations
 
+import json
 import re
 from collections import Counter
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from model.captions import mirror_label
 
-__all__ = ["item_action", "balanced_weights", "action_masses"]
+__all__ = ["item_action", "balanced_weights", "action_masses", "run_sampling_weights", "BALANCE_POWER_HELP"]
 
 _BANDAI_ID = re.compile(r"^(M?)dataset-\d+_([a-z-]+)_[a-z-]+_\d+(?:_p\d+)?$")
 OTHER = "other"
+MASSES_FILE = "action_masses.json"
+BALANCE_POWER_HELP = ("draw training items so each action's mass ~ (its item count)**p: 1 natural, 0 uniform over "
+                      "actions (model.balancing)")
 
 
 def item_action(item_id: str) -> str:
@@ -53,3 +58,13 @@ def action_masses(item_ids: Sequence[str], weights: np.ndarray) -> dict[str, flo
         action = item_action(item_id)
         masses[action] = masses.get(action, 0.0) + float(weight)
     return dict(sorted(masses.items(), key=lambda kv: -kv[1]))
+
+
+def run_sampling_weights(item_ids: Sequence[str], power: float, run_dir: str | Path) -> np.ndarray | None:
+    """A training run's item weights: None for the natural distribution (power >= 1), else the balanced weights,
+    with each action's mass written to <run_dir>/action_masses.json so the run records how often it saw each."""
+    if power >= 1.0:
+        return None
+    weights = balanced_weights(item_ids, power)
+    (Path(run_dir) / MASSES_FILE).write_text(json.dumps(action_masses(item_ids, weights), indent=1))
+    return weights

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from model.balancing import BALANCE_POWER_HELP
+
 if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must not pay for it
     import torch
 
@@ -120,9 +122,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--length-keep", type=float, default=0.8, help="probability of giving the true length")
     parser.add_argument("--corruption", default="0.5", help="code corruption rate tau in [0, 1], or 'uniform'")
     parser.add_argument("--cond-drop", type=float, default=0.1, help="condition dropout probability")
-    parser.add_argument("--balance-power", type=float, default=1.0,
-                        help="sample clips so each action's mass ~ (its clip count)**p: 1 natural, 0 uniform "
-                             "over actions (model.balancing)")
+    parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
     parser.add_argument("--log-every", type=int, default=50)
     parser.add_argument("--val-every", type=int, default=1000)
     parser.add_argument("--save-every", type=int, default=1000)
@@ -154,12 +154,10 @@ def load_or_encode_codes(vq: torch.nn.Module, reader: Any, path: Path, reuse: bo
 
 
 def main(args: argparse.Namespace) -> int:
-    import json
-
     import torch
     from torch.utils.data import DataLoader
 
-    from model.balancing import action_masses, balanced_weights
+    from model.balancing import run_sampling_weights
     from model.gpt import GPTConfig, MotionGPT
     from model.checkpoint import load_model
     from model.datasets import LengthBucketSampler, TextMotionDataset, open_split, trim_padding
@@ -212,10 +210,7 @@ def main(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed + 1)
     val_batches = list(val_loader)[:8]
     torch.manual_seed(args.seed)
-    weights = None
-    if args.balance_power < 1.0:
-        weights = balanced_weights(train_set.ids, args.balance_power)
-        (out / "action_masses.json").write_text(json.dumps(action_masses(train_set.ids, weights), indent=1))
+    weights = run_sampling_weights(train_set.ids, args.balance_power, out)
     loader = DataLoader(train_set, batch_sampler=LengthBucketSampler(train_set.token_counts, args.batch_size,
                                                                      weights=weights))
     settings = LoopSettings(

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from model.balancing import BALANCE_POWER_HELP
+
 if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must not pay for it
     import torch
 
@@ -123,9 +125,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vel-weight", type=float, default=0.5)
     parser.add_argument("--commit-weight", type=float, default=None,
                         help="weight of the quantiser loss (default 0.02 for ema_reset/residual, 1.0 for plain)")
-    parser.add_argument("--balance-power", type=float, default=1.0,
-                        help="sample windows so each action's mass ~ (its clip count)**p: 1 natural, 0 uniform "
-                             "over actions (model.balancing)")
+    parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
     parser.add_argument("--log-every", type=int, default=50)
     parser.add_argument("--val-every", type=int, default=1000)
     parser.add_argument("--save-every", type=int, default=1000)
@@ -145,19 +145,15 @@ def parse_milestones(text: str) -> tuple[float, ...]:
 
 
 def window_loader(train_set: Any, batch_size: int, balance_power: float, out: Path) -> Any:
-    """Shuffled windows, or (balance_power < 1) windows drawn with action-balanced weights, logged to
-    <out>/action_masses.json so the run records how often each action was seen."""
-    import json
-
+    """Shuffled windows, or (balance_power < 1) windows drawn with action-balanced weights (model.balancing)."""
     from torch.utils.data import DataLoader, WeightedRandomSampler
 
-    from model.balancing import action_masses, balanced_weights
+    from model.balancing import run_sampling_weights
 
     drop_last = len(train_set) >= batch_size
-    if balance_power >= 1.0:
+    weights = run_sampling_weights(train_set.ids, balance_power, out)
+    if weights is None:
         return DataLoader(train_set, batch_size=batch_size, shuffle=True, drop_last=drop_last)
-    weights = balanced_weights(train_set.ids, balance_power)
-    (out / "action_masses.json").write_text(json.dumps(action_masses(train_set.ids, weights), indent=1))
     sampler = WeightedRandomSampler(weights.tolist(), num_samples=len(train_set), replacement=True)
     return DataLoader(train_set, batch_size=batch_size, sampler=sampler, drop_last=drop_last)
 
