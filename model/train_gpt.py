@@ -4,6 +4,10 @@ Per batch:
 - code corruption (T2M-GPT): a fraction tau of the *input* codes is replaced by random codes, so the model
   learns to recover from its own sampling mistakes; tau fixed (--corruption 0.5) or drawn U[0, 1] per sample
   (--corruption uniform). End and Pad are left as they are.
+- condition noise: each row's text feature is moved to a random direction at a random distance (cosine down to
+  1/sqrt(1 + s^2) for --cond-noise s), keeping its norm. A new wording lands about 0.2 in cosine from the nearest
+  training caption; without noise the GPT saw only the ~15k caption embeddings and did not carry their motion to
+  such neighbours (a turn probe whose nearest captions are all turns still walked straight).
 - condition dropout (T2M-HiFiGPT / MoMask): with probability p the text feature becomes zeros, which trains the
   unconditional branch that classifier-free guidance needs (the null condition = zeros).
 - length conditioning (T2LM-style): with probability --length-keep the true code count is given, else 0 (free).
@@ -41,6 +45,19 @@ def corrupt_codes(
     replace = (torch.rand(tokens.shape, generator=generator) < tau) & is_code
     random_codes = torch.randint(0, codebook_size, tokens.shape, generator=generator)
     return torch.where(replace, random_codes, tokens)
+
+
+def perturb_condition(cond: torch.Tensor, max_noise: float, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Add isotropic noise of relative size U[0, max_noise] per row, keeping each row's norm (null rows stay zero)."""
+    import torch
+
+    if max_noise == 0:
+        return cond
+    norm = cond.norm(dim=-1, keepdim=True)
+    scale = torch.rand(cond.shape[0], 1, generator=generator) * max_noise
+    noise = torch.randn(cond.shape, generator=generator) * norm * scale / cond.shape[-1] ** 0.5
+    noisy = cond + noise
+    return noisy * norm / noisy.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def drop_condition(cond: torch.Tensor, p: float, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -121,6 +138,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--length-conditioning", action=argparse.BooleanOptionalAction, default=True)
     parser.add_argument("--length-keep", type=float, default=0.8, help="probability of giving the true length")
     parser.add_argument("--corruption", default="0.5", help="code corruption rate tau in [0, 1], or 'uniform'")
+    parser.add_argument("--cond-noise", type=float, default=0.0,
+                        help="largest relative noise added to the text feature (0 = off; see the module docstring)")
     parser.add_argument("--cond-drop", type=float, default=0.1, help="condition dropout probability")
     parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
     parser.add_argument("--log-every", type=int, default=50)
@@ -172,6 +191,8 @@ def main(args: argparse.Namespace) -> int:
     for name in ("cond_drop", "length_keep", "balance_power"):
         if not 0.0 <= getattr(args, name) <= 1.0:
             raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1]")
+    if args.cond_noise < 0:
+        raise ValueError(f"--cond-noise must be >= 0, got {args.cond_noise}")
     out = Path(args.out)
     if out.exists() and (out / "config.json").exists() and not args.resume:
         raise ValueError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
@@ -222,7 +243,7 @@ def main(args: argparse.Namespace) -> int:
     def step_fn(net: MotionGPT, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float], int]:
         tokens = trim_padding(batch["tokens"], config.pad_id)
         inputs = corrupt_codes(tokens[:, :-1], sample_tau(len(tokens), corruption), nb_code)
-        cond = drop_condition(batch["cond"], args.cond_drop)
+        cond = drop_condition(perturb_condition(batch["cond"], args.cond_noise), args.cond_drop)
         length = drop_length(batch["length"], args.length_keep) if config.length_conditioning else None
         loss, metrics = next_token_loss(net, cond, inputs, tokens, length)
         return loss, metrics, len(tokens)
@@ -237,7 +258,7 @@ def main(args: argparse.Namespace) -> int:
             "normalize": args.text_encoder == "minilm", "null_condition": "zeros",
             **({"clip_weights": str(Path(args.clip_weights).resolve())} if args.clip_weights else {}),
         },
-        "training": {"corruption": corruption, "cond_drop": args.cond_drop, "length_keep": args.length_keep,
+        "training": {"corruption": corruption, "cond_noise": args.cond_noise, "cond_drop": args.cond_drop, "length_keep": args.length_keep,
                      "balance_power": args.balance_power},
     }
     run_training(

@@ -5,11 +5,14 @@ loss = smooth-L1(recon, x)
                        (channels 4 : 4 + 3 (J-1) of the normalised features; T2M-GPT applies its "velocity"
                        loss to those channels themselves, we use their true temporal differences, which
                        penalises jitter)
+     + bone_weight   * L1 of the bone lengths (metres, model.bone_lengths) against the input's: the decoder predicts
+                       joint positions freely, and without this term generated bones stretch by centimetres
      + commit_weight * the quantiser's loss: commitment for ema_reset/residual (weight 0.02, T2M-GPT);
                        codebook + 0.25 commitment for plain (weight 1, the original VQ-VAE)
 
 Validation on the val split (deterministic windows): reconstruction loss, codebook perplexity,
-and the mean per-joint position error in millimetres after de-normalising and recovering joints.
+the mean per-joint position error in millimetres after de-normalising and recovering joints, and how much the
+reconstructed bones change length within a window (bone_std_mm).
 The run directory also gets mean.npy / std.npy: the normalisation the decoder must undo.
 """
 from __future__ import annotations
@@ -25,6 +28,7 @@ from model.balancing import BALANCE_POWER_HELP
 if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must not pay for it
     import torch
 
+    from model.bone_lengths import BoneLengths
     from model.vqvae import MotionVQVAE
 
 QUANTIZERS = ("ema_reset", "plain", "residual")  # = model.vqvae.QUANTIZERS (kept here so argparse needs no torch)
@@ -38,7 +42,8 @@ def joints_from_feature_dim(feat_dim: int) -> int:
 
 
 def vq_loss(
-    model: MotionVQVAE, x: torch.Tensor, vel_weight: float = 0.5, commit_weight: float = 0.02
+    model: MotionVQVAE, x: torch.Tensor, vel_weight: float = 0.5, commit_weight: float = 0.02,
+    bones: BoneLengths | None = None, bone_weight: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The training loss and its parts for a batch of normalised windows [B, T, D]."""
     import torch
@@ -50,12 +55,17 @@ def vq_loss(
     positions = slice(4, 4 + 3 * (joints - 1))
     velocity = F.smooth_l1_loss(torch.diff(recon[..., positions], dim=1), torch.diff(x[..., positions], dim=1))
     loss = reconstruction + vel_weight * velocity + commit_weight * parts["commit"]
-    return loss, {
+    metrics = {
         "recon": float(reconstruction.detach()),
         "vel": float(velocity.detach()),
         "commit": float(parts["commit"].detach()),
         "perplexity": float(parts["perplexity"]),
     }
+    if bones is not None and bone_weight > 0:
+        bone = F.l1_loss(bones(recon), bones(x))
+        loss = loss + bone_weight * bone
+        metrics["bone_m"] = float(bone.detach())
+    return loss, metrics
 
 
 def validate_vq(
@@ -77,11 +87,14 @@ def _validate_vq(
     import torch
     import torch.nn.functional as F
 
+    from model.motion_data import SKELETON_BY_DIM
     from model.quantizers import code_perplexity
     from motion.features import features_to_joints
+    from motion.skeleton import get_skeleton
 
-    losses, codes, errors = [], [], []
-    skeleton = "smpl22" if windows.shape[-1] == 263 else "kit21"
+    losses, codes, errors, bone_stds = [], [], [], []
+    skeleton = SKELETON_BY_DIM[windows.shape[-1]]
+    parents = list(get_skeleton(skeleton).parents[1:])
     for start in range(0, len(windows), batch_size):
         x = windows[start : start + batch_size]
         recon, parts = model(x)
@@ -94,12 +107,15 @@ def _validate_vq(
             truth = features_to_joints(x[index].numpy() * std + mean, skeleton)
             guess = features_to_joints(recon[index].numpy() * std + mean, skeleton)
             errors.append(float(np.linalg.norm(truth - guess, axis=-1).mean()))
+            bone_lengths = np.linalg.norm(guess[:, 1:] - guess[:, parents], axis=-1)
+            bone_stds.append(float(bone_lengths.std(axis=0).mean()))
     all_codes = torch.cat(codes)
     first_layer = all_codes[:, 0] if all_codes.dim() == 2 else all_codes
     return {
         "recon": sum(losses) / len(windows),
         "perplexity": float(code_perplexity(first_layer, model.config.nb_code)),
         "mpjpe_mm": 1000.0 * float(np.mean(errors)),
+        "bone_std_mm": 1000.0 * float(np.mean(bone_stds)),
     }
 
 
@@ -123,6 +139,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--residual-layers", type=int, default=1)
     parser.add_argument("--quantizer-dropout", type=float, default=0.2)
     parser.add_argument("--vel-weight", type=float, default=0.5)
+    parser.add_argument("--bone-weight", type=float, default=0.0,
+                        help="weight of the bone-length L1 term (metres; 0 = off, as in T2M-GPT)")
     parser.add_argument("--commit-weight", type=float, default=None,
                         help="weight of the quantiser loss (default 0.02 for ema_reset/residual, 1.0 for plain)")
     parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
@@ -162,15 +180,20 @@ def main(args: argparse.Namespace) -> int:
     import torch
     from torch.utils.data import DataLoader
 
+    from model.bone_lengths import BoneLengths
     from model.vqvae import MotionVQVAE, VQConfig
     from model.datasets import VQWindowDataset, open_split
+    from model.motion_data import SKELETON_BY_DIM
     from model.training import LoopSettings, infinite, run_training, set_seed, set_threads
+    from motion.skeleton import get_skeleton
 
     if args.window % 4 or args.window < 4:
         raise ValueError(f"--window must be a positive multiple of 4, got {args.window}")
     for name in ("steps", "batch_size"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1")
+    if args.bone_weight < 0:
+        raise ValueError(f"--bone-weight must be >= 0, got {args.bone_weight}")
     if not 0.0 <= args.balance_power <= 1.0:
         raise ValueError(f"--balance-power must be in [0, 1], got {args.balance_power}")
     if args.commit_weight is None:
@@ -204,14 +227,17 @@ def main(args: argparse.Namespace) -> int:
         log_every=args.log_every, val_every=args.val_every, save_every=args.save_every, seed=args.seed,
     )
 
+    bones = BoneLengths(mean, std, get_skeleton(SKELETON_BY_DIM[int(mean.shape[0])]).parents)
+
     def step_fn(net: MotionVQVAE, batch: torch.Tensor) -> tuple[torch.Tensor, dict[str, float], int]:
-        loss, metrics = vq_loss(net, batch, args.vel_weight, args.commit_weight)
+        loss, metrics = vq_loss(net, batch, args.vel_weight, args.commit_weight, bones, args.bone_weight)
         return loss, metrics, len(batch)
 
     data_info: dict[str, Any] = {
         "data_dir": str(Path(args.data).resolve()), "train_clips": len(train_set), "val_windows": len(val_windows),
         "window": args.window, "batch_size": args.batch_size, "seed": args.seed, "balance_power": args.balance_power,
-        "loss": {"vel_weight": args.vel_weight, "commit_weight": args.commit_weight},
+        "loss": {"vel_weight": args.vel_weight, "commit_weight": args.commit_weight,
+                 "bone_weight": args.bone_weight},
         "normalization": {"mean": "mean.npy", "std": "std.npy"},
     }
     run_training(

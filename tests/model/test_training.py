@@ -12,7 +12,7 @@ import torch
 from model.checkpoint import load_model, save_checkpoint
 from model.datasets import TextMotionDataset, VQWindowDataset, open_split, precompute_codes
 from model.gpt import GPTConfig, MotionGPT
-from model.train_gpt import corrupt_codes, drop_condition, drop_length, sample_tau
+from model.train_gpt import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
 from model.training import LoopSettings, infinite, lr_factor, run_training
 from model.vqvae import MotionVQVAE, VQConfig
 from synthetic_motion_data import make_dataset
@@ -55,6 +55,20 @@ def test_condition_dropout_rate_and_null_condition():
     zero_rows = (dropped == 0).all(dim=1)
     assert zero_rows.float().mean().item() == pytest.approx(0.1, abs=0.01)
     assert torch.equal(dropped[~zero_rows], cond[~zero_rows])
+
+
+def test_condition_noise_keeps_norms_and_bounds_the_cosine():
+    """Noise of relative size s in D dims leaves a cosine of about 1/sqrt(1 + s^2) to the clean feature."""
+    cond = torch.nn.functional.normalize(torch.randn(4000, 384), dim=-1) * 2.0
+    cond[:10] = 0.0  # null conditions must stay null
+    noisy = perturb_condition(cond, 0.8, torch.Generator().manual_seed(0))
+    assert torch.equal(noisy[:10], cond[:10])
+    assert torch.allclose(noisy[10:].norm(dim=-1), torch.full((3990,), 2.0), atol=1e-5)
+    cosine = torch.nn.functional.cosine_similarity(noisy[10:], cond[10:], dim=-1)
+    assert cosine.max() <= 1.0 + 1e-6 and cosine.min() >= 1 / (1 + 0.8**2) ** 0.5 - 0.1
+    scales = torch.linspace(0, 0.8, 10001)
+    assert cosine.mean().item() == pytest.approx((1 / (1 + scales**2).sqrt()).mean().item(), abs=0.01)
+    assert torch.equal(perturb_condition(cond, 0.0), cond)
 
 
 def test_length_dropout_keeps_the_true_length_with_the_given_probability():
@@ -211,7 +225,8 @@ def test_cli_trains_vq_then_gpt_for_three_steps(data_dir, tmp_path, monkeypatch)
 
 
 def test_cli_balanced_sampling_is_recorded(data_dir, tmp_path, monkeypatch):
-    """--balance-power < 1 trains both stages with action-balanced draws and records the masses it used."""
+    """--balance-power < 1 trains both stages with action-balanced draws and records the masses it used (and the
+    GPT its --cond-noise); out-of-range values are refused with exit code 2."""
     from cli.main import main
 
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
@@ -221,13 +236,33 @@ def test_cli_balanced_sampling_is_recorded(data_dir, tmp_path, monkeypatch):
     assert main(["train", "vq", "--data", str(data_dir), "--out", str(vq_run), "--width", "16", "--code-dim", "8",
                  "--nb-code", "16", *common]) == 0
     assert main(["train", "gpt", "--data", str(data_dir), "--vq", str(vq_run), "--out", str(gpt_run),
-                 "--embed", "32", "--layers", "2", "--heads", "2", "--max-tokens", "20", *common]) == 0
+                 "--embed", "32", "--layers", "2", "--heads", "2", "--max-tokens", "20", "--cond-noise", "0.4",
+                 *common]) == 0
     for run in (vq_run, gpt_run):
         masses = json.loads((run / "action_masses.json").read_text())
         assert masses and sum(masses.values()) == pytest.approx(1.0)
     assert json.loads((vq_run / "config.json").read_text())["data"]["balance_power"] == 0.3
-    assert json.loads((gpt_run / "config.json").read_text())["data"]["training"]["balance_power"] == 0.3
+    gpt_training = json.loads((gpt_run / "config.json").read_text())["data"]["training"]
+    assert gpt_training["balance_power"] == 0.3 and gpt_training["cond_noise"] == 0.4
     bad = ["--steps", "1", "--threads", "1", "--balance-power", "1.5"]
+    assert main(["train", "gpt", "--data", str(data_dir), "--vq", str(vq_run), "--out", str(tmp_path / "noisy_gpt"),
+                 "--steps", "1", "--threads", "1", "--cond-noise", "-0.5"]) == 2
     assert main(["train", "vq", "--data", str(data_dir), "--out", str(tmp_path / "bad_vq"), *bad]) == 2
     assert main(["train", "gpt", "--data", str(data_dir), "--vq", str(vq_run), "--out", str(tmp_path / "bad_gpt"),
                  *bad]) == 2
+
+
+def test_cli_records_the_bone_weight_and_refuses_a_negative_one(data_dir, tmp_path):
+    """--bone-weight reaches the loss (its part is logged), is recorded, and a negative weight is refused."""
+    from cli.main import main
+
+    run = tmp_path / "vq"
+    assert main(["train", "vq", "--data", str(data_dir), "--out", str(run), "--width", "16", "--code-dim", "8",
+                 "--nb-code", "16", "--steps", "2", "--batch-size", "4", "--log-every", "1", "--val-every", "2",
+                 "--save-every", "2", "--threads", "1", "--bone-weight", "0.5"]) == 0
+    config = json.loads((run / "config.json").read_text())
+    assert config["data"]["loss"]["bone_weight"] == 0.5
+    log = (run / "log.csv").read_text()
+    assert "bone_m" in log.splitlines()[0] and "bone_std_mm" in log
+    assert main(["train", "vq", "--data", str(data_dir), "--out", str(tmp_path / "bad"), "--steps", "1",
+                 "--threads", "1", "--bone-weight", "-1"]) == 2
