@@ -16,7 +16,10 @@ generated for its own duration, the streams' codes are concatenated and decoded 
 Sliding-scope FID compares 80-frame windows (stride 40) of the streams with 80-frame windows of the real test clips;
 transition-scope FID compares the 80-frame windows centred on the joins with the same real windows. The pelvis
 velocity jump is the change of the pelvis velocity between consecutive frames at the joins versus inside segments
-(and inside real clips, for reference).
+(and inside real clips, for reference). Two reference rows use the same streams of real crops instead of generated
+ones, so that "transition-scope FID close to sliding-scope FID" has a scale: the crops pasted with hard cuts (what
+joins cost with no transition at all) and the crops' own VQ codes concatenated and decoded once (what the decoder's
+receptive field makes of those cuts without the GPT).
 """
 from __future__ import annotations
 
@@ -224,8 +227,8 @@ def decode(models: Models, codes: Sequence[Sequence[int]] | Sequence[np.ndarray]
 
 
 @torch.no_grad()
-def reconstruct(models: Models, motions: Sequence[np.ndarray], batch_size: int = 128) -> list[np.ndarray]:
-    """Raw motions -> VQ codes -> raw reconstructions of the same length."""
+def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size: int = 128) -> list[np.ndarray]:
+    """Raw motions -> their VQ code sequences."""
     codes: list[np.ndarray] = [np.zeros(0)] * len(motions)
     for indices in _groups_by_length(motions).values():
         for start in range(0, len(indices), batch_size):
@@ -234,7 +237,12 @@ def reconstruct(models: Models, motions: Sequence[np.ndarray], batch_size: int =
             batch_codes = models.vq.encode(torch.from_numpy(normalised.astype(np.float32))).numpy()
             for row, index in enumerate(chunk):
                 codes[index] = batch_codes[row]
-    return decode(models, codes, batch_size)
+    return codes
+
+
+def reconstruct(models: Models, motions: Sequence[np.ndarray], batch_size: int = 128) -> list[np.ndarray]:
+    """Raw motions -> VQ codes -> raw reconstructions of the same length."""
+    return decode(models, reconstruct_codes(models, motions, batch_size), batch_size)
 
 
 def sample(models: Models, cond: np.ndarray, tokens: Sequence[int], guidance: float, options: EvalOptions,
@@ -367,6 +375,8 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
             if options.multi_sentence and n_streams > 0:
                 row[f"multi_g{guidance:g}"] = multi_sentence(models, cond, tokens, streams, guidance, options,
                                                              generator, real_window_emb)
+        if options.multi_sentence and n_streams > 0:
+            row.update(real_stream_references(models, reference.motions, streams, options, real_window_emb))
         runs.append(row)
     return {"options": asdict(options), "models": models.paths,
             "counts": {"clips": len(clips.ids), "real_windows": len(real_windows), "streams_per_repeat": n_streams,
@@ -378,17 +388,38 @@ def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], stre
                    options: EvalOptions, generator: torch.Generator,
                    real_window_emb: np.ndarray | None) -> dict[str, float]:
     """T2LM's streams: per-sentence codes, concatenated, decoded once; sliding/transition FID and pelvis jumps."""
-    from motion.features import features_to_joints
-
     flat = streams.reshape(-1)
     codes = sample(models, cond[flat], np.asarray(tokens)[flat], guidance, options, generator,
                    f"streams g={guidance:g}")
     per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
-    joined = [[c for segment in stream for c in segment] for stream in per_stream]
-    motions = decode(models, joined, options.batch_size)
+    motions = decode(models, [[c for segment in stream for c in segment] for stream in per_stream], options.batch_size)
+    lengths = [[FRAMES_PER_TOKEN * len(segment) for segment in stream] for stream in per_stream]
+    return stream_metrics(models.evaluator, motions, lengths, options, real_window_emb)
+
+
+def real_stream_references(models: Models, motions: Sequence[np.ndarray], streams: np.ndarray,
+                           options: EvalOptions, real_window_emb: np.ndarray | None) -> dict[str, dict[str, float]]:
+    """The streams' own real crops, pasted with hard cuts ("pasted") and as their VQ codes concatenated and decoded
+    once ("pasted_codes"): the scale against which the generated streams' joins are read."""
+    crops = [[motions[i] for i in stream] for stream in streams]
+    lengths = [[len(crop) for crop in stream] for stream in crops]
+    pasted = [np.concatenate(stream) for stream in crops]
+    codes = reconstruct_codes(models, [crop for stream in crops for crop in stream], options.batch_size)
+    per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
+    decoded = decode(models, [np.concatenate(stream) for stream in per_stream], options.batch_size)
+    return {"pasted": stream_metrics(models.evaluator, pasted, lengths, options, real_window_emb),
+            "pasted_codes": stream_metrics(models.evaluator, decoded, lengths, options, real_window_emb)}
+
+
+def stream_metrics(evaluator: MotionEvaluator | None, motions: Sequence[np.ndarray],
+                   segment_frames: Sequence[Sequence[int]], options: EvalOptions,
+                   real_window_emb: np.ndarray | None) -> dict[str, float]:
+    """Sliding/transition-scope FID and pelvis jumps of raw stream motions whose segments have the given lengths."""
+    from motion.features import features_to_joints
+
     sliding, transition, at_joins, inside = [], [], [], []
-    for motion, stream in zip(motions, per_stream):
-        joins = list(np.cumsum([FRAMES_PER_TOKEN * len(s) for s in stream])[:-1])
+    for motion, frames in zip(motions, segment_frames):
+        joins = [int(j) for j in np.cumsum(frames)[:-1]]
         sliding += windows(motion, options.window, options.stride)
         transition += join_windows(motion, joins, options.window)
         jumps_at, jumps_in = pelvis_velocity_jumps(features_to_joints(motion), joins)
@@ -396,7 +427,6 @@ def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], stre
         inside.append(jumps_in)
     result = {"pelvis_jump_joins": float(np.concatenate(at_joins).mean()),
               "pelvis_jump_within": float(np.concatenate(inside).mean())}
-    evaluator = models.evaluator
     if real_window_emb is not None and len(sliding) >= 2:
         result["sliding_fid"] = metrics.fid(real_window_emb, embed_motions(evaluator, sliding, normalized=False))
     if real_window_emb is not None and len(transition) >= 2:
@@ -430,6 +460,10 @@ def _row_label(row: str) -> str:
         return "Real motion"
     if row == "recon":
         return "VQ reconstruction"
+    if row == "pasted":
+        return "Real crops pasted (hard cuts)"
+    if row == "pasted_codes":
+        return "Real crops' VQ codes, decoded once"
     kind, guidance = row.split("_g")
     return f"Generation (guidance={guidance})" if kind == "gen" else f"Streams (guidance={guidance})"
 
@@ -472,7 +506,7 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
              f"features, in mm: global positions (the root trajectory is integrated from velocities, so its drift "
              f"counts) and root-relative (each frame's pose around its pelvis).", ""]
     lines += _table(summary, single, TABLE1_COLUMNS)
-    multi = [r for r in summary if r.startswith("multi_")]
+    multi = [r for r in summary if r.startswith("multi_")] + [r for r in ("pasted", "pasted_codes") if r in summary]
     if multi:
         lines += ["", f"## Table 2: streams of {options['stream_sentences']} sentences (T2LM's multi-sentence metrics)",
                   "",
@@ -480,7 +514,8 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
                   f"codes concatenated and decoded once. FIDs against {counts['real_windows']} real "
                   f"{options['window']}-frame windows (stride {options['stride']}); transition windows are centred on "
                   f"the joins. Pelvis Δv: change of the pelvis velocity between consecutive frames (the Real motion "
-                  f"row: inside real clips).", ""]
+                  f"row: inside real clips). The last two rows put the same streams' real crops together instead "
+                  f"of generating them: with hard cuts, and as their VQ codes decoded once.", ""]
         lines += _table(summary, ["real"] + multi, TABLE2_COLUMNS)
     return "\n".join(lines) + "\n"
 

@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 import torch
 
-from model.evaluation import FRAMES_PER_TOKEN, Clips, draw, join_windows, pelvis_velocity_jumps, windows
-from tests.model.synthetic_motion_data import make_dataset
+from model.evaluation import (FRAMES_PER_TOKEN, Clips, EvalOptions, draw, join_windows, pelvis_velocity_jumps,
+                              stream_metrics, windows)
+from tests.model.synthetic_motion_data import _source_motion, make_dataset
 
 ROWS = ("Real motion", "VQ reconstruction", "Generation (guidance=1)", "Generation (guidance=3)",
-        "Streams (guidance=1)", "Streams (guidance=3)")
+        "Streams (guidance=1)", "Streams (guidance=3)", "Real crops pasted (hard cuts)",
+        "Real crops' VQ codes, decoded once")
 
 
 class HashTextEncoder:
@@ -89,7 +91,9 @@ def test_eval_writes_every_row_with_finite_numbers(tiny_runs, tmp_path, capsys, 
                 "gen_g1": {"top1", "top3", "fid", "mm_dist", "diversity", "mmodality"},
                 "gen_g3": {"top1", "fid", "mmodality"},
                 "multi_g1": {"sliding_fid", "transition_fid", "pelvis_jump_joins", "pelvis_jump_within"},
-                "multi_g3": {"sliding_fid", "transition_fid", "pelvis_jump_joins", "pelvis_jump_within"}}
+                "multi_g3": {"sliding_fid", "transition_fid", "pelvis_jump_joins", "pelvis_jump_within"},
+                "pasted": {"sliding_fid", "transition_fid", "pelvis_jump_joins", "pelvis_jump_within"},
+                "pasted_codes": {"sliding_fid", "transition_fid", "pelvis_jump_joins", "pelvis_jump_within"}}
     for row, keys in expected.items():
         for key in keys:
             mean, half = summary[row][key]
@@ -97,6 +101,20 @@ def test_eval_writes_every_row_with_finite_numbers(tiny_runs, tmp_path, capsys, 
     # The real data against itself: a smaller FID than a random VQ's reconstruction, and R-precision in [0, 1].
     assert summary["real"]["fid"][0] < summary["recon"]["fid"][0]
     assert 0.0 <= summary["gen_g1"]["top1"][0] <= summary["gen_g1"]["top3"][0] <= 1.0
+
+
+def test_stream_metrics_see_a_hard_cut_and_not_a_seamless_one():
+    """The reference rows' measure on real motion (HumanML3D's sample): pasting a clip's frames 0-60 to its frames
+    60-120 is no cut at all, pasting them to frames 120-170 is a hard cut, and only the second jumps at the join."""
+    features, _, _ = _source_motion()
+    seamless = features[0:120]
+    cut = np.concatenate([features[0:60], features[120:170]])
+    options = EvalOptions()
+    metrics_seamless = stream_metrics(None, [seamless], [[60, 60]], options, real_window_emb=None)
+    metrics_cut = stream_metrics(None, [cut], [[60, 50]], options, real_window_emb=None)
+    assert metrics_cut["pelvis_jump_joins"] > 2 * metrics_seamless["pelvis_jump_joins"], (metrics_cut, metrics_seamless)
+    assert metrics_seamless["pelvis_jump_joins"] < 3 * metrics_seamless["pelvis_jump_within"]
+    assert "transition_fid" not in metrics_cut  # no real windows given: no FID
 
 
 def test_eval_names_a_checkpoint_of_the_wrong_kind(tiny_runs, tmp_path, capsys):
