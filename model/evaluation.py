@@ -240,10 +240,6 @@ def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size:
     return codes
 
 
-def reconstruct(models: Models, motions: Sequence[np.ndarray], batch_size: int = 128) -> list[np.ndarray]:
-    """Raw motions -> VQ codes -> raw reconstructions of the same length."""
-    return decode(models, reconstruct_codes(models, motions, batch_size), batch_size)
-
 
 def sample(models: Models, cond: np.ndarray, tokens: Sequence[int], guidance: float, options: EvalOptions,
            generator: torch.Generator, desc: str) -> list[list[int]]:
@@ -348,7 +344,8 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
                                             reference_emb, options, seed)
         row["real"]["pelvis_jump_within"] = float(real_within.mean())
 
-        recon = reconstruct(models, reference.motions, options.batch_size)
+        reference_codes = reconstruct_codes(models, reference.motions, options.batch_size)
+        recon = decode(models, reference_codes, options.batch_size)
         row["recon"] = single_motion_metrics(text_emb_a, embed_motions(evaluator, recon, normalized=False),
                                              reference_emb, options, seed)
         row["recon"]["mpjpe_mm"] = mpjpe_mm(reference.motions, recon)
@@ -376,7 +373,8 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
                 row[f"multi_g{guidance:g}"] = multi_sentence(models, cond, tokens, streams, guidance, options,
                                                              generator, real_window_emb)
         if options.multi_sentence and n_streams > 0:
-            row.update(real_stream_references(models, reference.motions, streams, options, real_window_emb))
+            row.update(real_stream_references(models, reference.motions, reference_codes, streams, options,
+                                              real_window_emb))
         runs.append(row)
     return {"options": asdict(options), "models": models.paths,
             "counts": {"clips": len(clips.ids), "real_windows": len(real_windows), "streams_per_repeat": n_streams,
@@ -397,16 +395,15 @@ def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], stre
     return stream_metrics(models.evaluator, motions, lengths, options, real_window_emb)
 
 
-def real_stream_references(models: Models, motions: Sequence[np.ndarray], streams: np.ndarray,
-                           options: EvalOptions, real_window_emb: np.ndarray | None) -> dict[str, dict[str, float]]:
-    """The streams' own real crops, pasted with hard cuts ("pasted") and as their VQ codes concatenated and decoded
-    once ("pasted_codes"): the scale against which the generated streams' joins are read."""
-    crops = [[motions[i] for i in stream] for stream in streams]
-    lengths = [[len(crop) for crop in stream] for stream in crops]
-    pasted = [np.concatenate(stream) for stream in crops]
-    codes = reconstruct_codes(models, [crop for stream in crops for crop in stream], options.batch_size)
-    per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
-    decoded = decode(models, [np.concatenate(stream) for stream in per_stream], options.batch_size)
+def real_stream_references(models: Models, motions: Sequence[np.ndarray], codes: Sequence[np.ndarray],
+                           streams: np.ndarray, options: EvalOptions,
+                           real_window_emb: np.ndarray | None) -> dict[str, dict[str, float]]:
+    """The streams' own real crops (`motions`, with their VQ `codes`), pasted with hard cuts ("pasted") and as their
+    codes concatenated and decoded once ("pasted_codes"): the scale against which the generated streams' joins are
+    read."""
+    lengths = [[len(motions[i]) for i in stream] for stream in streams]
+    pasted = [np.concatenate([motions[i] for i in stream]) for stream in streams]
+    decoded = decode(models, [np.concatenate([codes[i] for i in stream]) for stream in streams], options.batch_size)
     return {"pasted": stream_metrics(models.evaluator, pasted, lengths, options, real_window_emb),
             "pasted_codes": stream_metrics(models.evaluator, decoded, lengths, options, real_window_emb)}
 
