@@ -18,15 +18,13 @@ COPY . .
 RUN pip wheel --no-deps --wheel-dir /wheels . && pip install --no-deps /wheels/*.whl \
     && ! python -c "import torch" 2>/dev/null
 
-# ---- runtime: the venv, the default model, a non-root user ---------------------------------------------------
+# ---- runtime: the venv (its wheel carries the default model), a non-root user ----------------------------
 FROM python:${PYTHON_VERSION}-slim AS runtime
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
-    PYTHONDONTWRITEBYTECODE=1 \
-    T2M_MODEL_DIR=/app/models/default
+    PYTHONDONTWRITEBYTECODE=1
 RUN groupadd --system --gid 10001 t2m && useradd --system --uid 10001 --gid t2m --home-dir /app t2m
 COPY --from=builder /opt/venv /opt/venv
-COPY --chown=t2m:t2m models/default /app/models/default
 WORKDIR /app
 USER t2m
 EXPOSE 8000

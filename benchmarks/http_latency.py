@@ -4,7 +4,7 @@ Sequential requests (one at a time, after a warm-up) so the figure is the latenc
 text encoding, sampling, decoding, the format conversion and the HTTP round trip. Prints a markdown table.
 
     python benchmarks/http_latency.py --url http://127.0.0.1:8000 --repeats 10
-    python benchmarks/http_latency.py --model models/default --repeats 10      # starts its own server
+    python benchmarks/http_latency.py --model t2m/bundles/default --repeats 10      # starts its own server
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ The server's resident memory is sampled throughout (psutil if installed, else /p
 Only loopback URLs are accepted, and clients, seconds and requests are bounded: this is a benchmark, not a weapon.
 
     python benchmarks/load_test.py --url http://127.0.0.1:8000 --server-pid 1234 --clients 4 --seconds 10 --overload
-    python benchmarks/load_test.py --model models/default --clients 4 --seconds 10 --overload   # starts its own server
+    python benchmarks/load_test.py --model t2m/bundles/default --clients 4 --seconds 10 --overload   # starts its own server
 """
 from __future__ import annotations
 

@@ -1,11 +1,11 @@
-"""Does the model follow the text? Kinematic probes (motion.probes) run through a bundle's onnxruntime engine.
+"""Does the model follow the text? Kinematic probes (t2m.model.evaluation.probes) run through a bundle's onnxruntime engine.
 
 Every probe x phrasing x seed is generated as a `--duration` s motion (3 s by default) and measured; a paired probe
-(run vs walk) generates its reference sentence with the same seed. The three-sentence stream of motion.probes.STREAM
+(run vs walk) generates its reference sentence with the same seed. The three-sentence stream of t2m.model.evaluation.probes.STREAM
 is generated per seed too: each segment is probed against its own sentence and the pelvis velocity jump at each
 join is compared with the changes inside the segments. Prints markdown tables; `--json-out` keeps every trial.
 
-    python benchmarks/probes.py                                  # models/default, 5 seeds, the model's guidance
+    python benchmarks/probes.py                                  # t2m/bundles/default, 5 seeds, the model's guidance
     python benchmarks/probes.py --bundle DIR --seeds 5 --guidance 3 --json-out artifacts/probes.json
     python benchmarks/probes.py --real-clips /work/scratch/dataset --per-content 20   # the probes on motion capture
 """
@@ -24,11 +24,11 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the repo's packages importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from motion.probes import PROBES, STREAM, ProbeSpec, join_smoothness, probe_by_name  # noqa: E402
-from service.engine.types import GenerationRequest, Motion, SegmentRequest  # noqa: E402
+from t2m.model.evaluation.probes import PROBES, STREAM, ProbeSpec, join_smoothness, probe_by_name  # noqa: E402
+from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest  # noqa: E402
 
 if TYPE_CHECKING:
-    from service.engine.engine import OnnxEngine
+    from t2m.service.engine.engine import OnnxEngine
 
 __all__ = ["Trial", "ProbeSummary", "StreamSummary", "ProbeReport", "run_probes", "run_stream", "generate",
            "format_report", "calibrate_on_clips", "format_calibration", "main"]
@@ -36,7 +36,7 @@ __all__ = ["Trial", "ProbeSummary", "StreamSummary", "ProbeReport", "run_probes"
 log = logging.getLogger("benchmarks.probes")
 
 REPO = Path(__file__).resolve().parent.parent
-DEFAULT_BUNDLE = REPO / "models" / "default"
+DEFAULT_BUNDLE = REPO / "t2m" / "bundles" / "default"
 BATCH = 16          # requests sampled in lockstep per engine call
 
 
@@ -238,9 +238,9 @@ def calibrate_on_clips(dataset_dir: str | Path, per_content: int = 20, seconds: 
 
     from tqdm import tqdm
 
-    from motion.bvh import read_bvh
-    from motion.probes import probe_run_vs_walk
-    from motion.retarget import bvh_to_smpl22
+    from t2m.motion.bvh import read_bvh
+    from t2m.model.evaluation.probes import probe_run_vs_walk
+    from t2m.motion.retarget import bvh_to_smpl22
 
     root = Path(dataset_dir)
     files = sorted(root.glob("Bandai-Namco-Research-Motiondataset-*/data/*.bvh"))
@@ -281,7 +281,7 @@ def format_calibration(rates: dict[str, dict[str, float]], counts: dict[str, int
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--bundle", default=str(DEFAULT_BUNDLE), help="bundle directory (default models/default)")
+    parser.add_argument("--bundle", default=str(DEFAULT_BUNDLE), help="bundle directory (default t2m/bundles/default)")
     parser.add_argument("--seeds", type=int, default=5, help="seeds per phrasing (0..N-1)")
     parser.add_argument("--guidance", type=float, default=None,
                         help="classifier-free guidance (default: the manifest's, or 1 without an unconditional branch)")
@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--duration: {args.duration} is outside 0.2..10 s")
     try:
         specs = PROBES if args.probes is None else [probe_by_name(name.strip()) for name in args.probes.split(",")]
-        from service.engine.engine import OnnxEngine
+        from t2m.service.engine.engine import OnnxEngine
 
         engine = OnnxEngine.load(args.bundle)
     except (ValueError, FileNotFoundError) as error:

@@ -2,12 +2,12 @@
 # Every benchmark once, side by side: model-level speed (`t2m bench --quick`), HTTP latency of a 10 s motion per
 # output format, and a short load test with an overload phase. One server (`t2m serve`, loopback) serves the HTTP
 # benchmarks; it is stopped at the end.
-# Usage: benchmarks/run_all.sh [MODEL_DIR]     (default: models/default)
+# Usage: benchmarks/run_all.sh [MODEL_DIR]     (default: t2m/bundles/default)
 # Env:   PYTHON (default python), T2M_MAX_QUEUE for the server (default 4), LOAD_SECONDS (default 20)
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$repo"
-model="${1:-$repo/models/default}"
+model="${1:-$repo/t2m/bundles/default}"
 python="${PYTHON:-python}"
 load_seconds="${LOAD_SECONDS:-20}"
 export T2M_MAX_QUEUE="${T2M_MAX_QUEUE:-4}"

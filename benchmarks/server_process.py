@@ -83,7 +83,7 @@ def running_server(model_dir: str | Path, env: dict[str, str] | None = None, sta
     log_path = log_dir / f"server-{port}.log"
     child_env = {**os.environ, **(env or {})}
     child_env.setdefault("PYTHONPATH", str(REPO))
-    command = [sys.executable, "-m", "cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+    command = [sys.executable, "-m", "t2m.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
                "--model", str(model_dir)]
     with open(log_path, "wb") as log:
         process = subprocess.Popen(command, cwd=REPO, env=child_env, stdout=log, stderr=subprocess.STDOUT)

@@ -26,8 +26,8 @@ def time_steps(step, steps: int, warmup: int = 2) -> tuple[float, float]:  # noq
 
 
 def bench_vq(width: int, batch: int, window: int, steps: int) -> tuple[float, float, int]:
-    from model.train_vq import vq_loss
-    from model.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.train_vq import vq_loss
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     model = MotionVQVAE(VQConfig(width=width, code_dim=width, nb_code=512)).train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=2e-4)
@@ -44,8 +44,8 @@ def bench_vq(width: int, batch: int, window: int, steps: int) -> tuple[float, fl
 
 
 def bench_gpt(embed: int, layers: int, heads: int, batch: int, steps: int) -> tuple[float, float, int]:
-    from model.gpt import GPTConfig, MotionGPT
-    from model.train_gpt import next_token_loss
+    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.model.training.train_gpt import next_token_loss
 
     config = GPTConfig(codebook_size=512, embed=embed, n_head=heads, n_layer_base=layers - layers // 2,
                        n_layer_head=layers // 2, block_size=51, text_dim=384)

@@ -1,11 +1,11 @@
 """Pictures of generated motions for the README and the model card: a contact sheet and an animated stream.
 
 docs/images/contact_sheet.png: one row per motion (a probe sentence, 3 s, or the three-sentence stream of
-motion.probes.STREAM), each row a strip of stick-figure frames seen from the front-left of where the motion starts
+t2m.model.evaluation.probes.STREAM), each row a strip of stick-figure frames seen from the front-left of where the motion starts
 (left bones blue, right bones red), with the pelvis path drawn on a 0.5 m floor grid and the probe's measurement in
 the title. docs/images/stream.gif: the stream animated, the current sentence written above the figure.
 
-    python scripts/render_motions.py                             # models/default, seed 0
+    python scripts/render_motions.py                             # t2m/bundles/default, seed 0
     python scripts/render_motions.py --bundle DIR --seed 3 --guidance 3 --out docs/images
 """
 from __future__ import annotations
@@ -22,8 +22,8 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the repo's packages importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from motion.probes import STREAM, initial_facing, path_length, probe_by_name  # noqa: E402
-from motion.skeleton import SMPL22  # noqa: E402
+from t2m.model.evaluation.probes import STREAM, initial_facing, path_length, probe_by_name  # noqa: E402
+from t2m.motion.skeleton import SMPL22  # noqa: E402
 
 __all__ = ["SheetRow", "Camera", "contact_sheet", "stream_gif", "SINGLE_MOTIONS", "main"]
 
@@ -244,7 +244,7 @@ def _title(text: str, seconds: float, seed: int, probe: str, joints: np.ndarray)
 
 def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) -> tuple[list[SheetRow], object]:
     """Generate the single-sentence motions and the stream; the sheet's rows and the stream's Motion."""
-    from service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
     singles = [(name, probe_by_name(name).phrasings[index]) for name, index in SINGLE_MOTIONS]
     requests = [GenerationRequest(segments=[SegmentRequest(text, duration)], seed=seed, guidance=guidance)
@@ -267,7 +267,7 @@ def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) ->
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--bundle", default=str(REPO / "models" / "default"), help="bundle directory")
+    parser.add_argument("--bundle", default=str(REPO / "t2m" / "bundles" / "default"), help="bundle directory")
     parser.add_argument("--out", default=str(REPO / "docs" / "images"), help="output directory")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--guidance", type=float, default=None,
@@ -275,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     try:
-        from service.engine.engine import OnnxEngine
+        from t2m.service.engine.engine import OnnxEngine
 
         engine = OnnxEngine.load(args.bundle)
     except (ValueError, FileNotFoundError) as error:

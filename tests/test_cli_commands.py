@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from cli.main import COMMANDS, build_parser, main
+from t2m.cli.main import COMMANDS, build_parser, main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,7 +25,7 @@ def test_every_command_registers_with_its_own_name() -> None:
 def test_runtime_commands_do_not_import_torch(command: str) -> None:
     code = (
         "import sys\n"
-        "from cli.main import main\n"
+        "from t2m.cli.main import main\n"
         f"try:\n    main([{command!r}, '--help'])\nexcept SystemExit:\n    pass\n"
         "print('torch' in sys.modules)\n"
     )

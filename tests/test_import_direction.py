@@ -1,5 +1,7 @@
 """The arrows of docs/contracts.md, checked on the source: every import statement (top level or inside a function)
-of every .py file under motion/, service/, client/ and model/ is read with `ast`."""
+of every .py file under t2m/motion/, t2m/bundle/, t2m/service/, t2m/client/ and t2m/model/ is read with `ast`.
+
+Our packages are the sub-packages of `t2m`; an import of `t2m.X...` counts as an import of package X."""
 from __future__ import annotations
 
 import ast
@@ -9,42 +11,50 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-OURS = {"motion", "model", "export", "service", "client", "cli"}
+ROOT = REPO / "t2m"
+OURS = {"motion", "model", "export", "service", "client", "cli", "bundle", "bundles"}
 STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 
 # which of our packages each package may import (itself included)
 ALLOWED_OURS = {
     "motion": {"motion"},
-    "service": {"service", "motion"},
+    "bundle": {"bundle"},
+    "service": {"service", "motion", "bundle", "bundles"},
     "client": {"client"},
-    "model": {"model", "motion"},
+    "model": {"model", "motion", "bundle"},
 }
-NEVER = {"torch"}  # for motion, service and client
+NEVER = {"torch"}  # for motion, bundle, service and client
 MOTION_THIRD_PARTY = {"numpy"}
 GLTF_THIRD_PARTY = {"numpy", "pygltflib", "trimesh"}
 
 
 def imported_top_names(path: Path) -> list[tuple[int, str]]:
-    """(line, top-level module) for every import in the file; relative imports count as the file's own package."""
+    """(line, package) for every import in the file: the sub-package for `t2m.X...`, else the top-level module;
+    relative imports count as the file's own package."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    package = path.relative_to(REPO).parts[0]
+    package = path.relative_to(ROOT).parts[0]
     names: list[tuple[int, str]] = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names += [(node.lineno, alias.name.split(".")[0]) for alias in node.names]
+            names += [(node.lineno, _package_of(alias.name)) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            names.append((node.lineno, package if node.level else (node.module or "").split(".")[0]))
+            names.append((node.lineno, package if node.level else _package_of(node.module or "")))
     return names
 
 
+def _package_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if parts[0] == "t2m" and len(parts) > 1 else parts[0]
+
+
 def sources(package: str) -> list[Path]:
-    return sorted((REPO / package).rglob("*.py"))
+    return sorted((ROOT / package).rglob("*.py"))
 
 
 def violations(package: str) -> list[str]:
     found = []
     for path in sources(package):
-        where = path.relative_to(REPO)
+        where = path.relative_to(ROOT)
         for line, name in imported_top_names(path):
             if name in OURS and name not in ALLOWED_OURS[package]:
                 found.append(f"{where}:{line} imports {name}")
@@ -67,8 +77,8 @@ def test_the_checker_sees_nested_and_relative_imports(tmp_path, monkeypatch):
     """The rule must be able to fail: a nested torch import and a relative import are both reported."""
     fake = tmp_path / "service" / "engine"
     fake.mkdir(parents=True)
-    (fake / "bad.py").write_text("def f():\n    import torch\n    from model.gpt import GPT\nfrom . import x\n")
-    monkeypatch.setattr(sys.modules[__name__], "REPO", tmp_path)
+    (fake / "bad.py").write_text("def f():\n    import torch\n    from t2m.model.networks.gpt import GPT\nfrom . import x\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert violations("service") == [
         "service/engine/bad.py:2 imports torch",
         "service/engine/bad.py:3 imports model",

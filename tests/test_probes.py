@@ -1,9 +1,9 @@
-"""The kinematic probes (motion.probes) and their runner (benchmarks/probes.py).
+"""The kinematic probes (t2m.model.evaluation.probes) and their runner (benchmarks/probes.py).
 
 (a) On real motion capture: each probe passes on a Bandai-Namco clip of its action (converted to SMPL-22 with
     motion.retarget, cut to the runner's 3 s) and fails on a clearly different one; one probe also on HumanML3D's
     own sample. These show the probes measure the right thing.
-(b) On the shipped default model (models/default; skipped while it is absent): every probe's pass rate over several
+(b) On the shipped default model (t2m/bundles/default; skipped while it is absent): every probe's pass rate over several
     seeds and unseen phrasings is at least MODEL_MIN_PASS_RATE. These show the model follows the text.
 """
 from __future__ import annotations
@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motion import probes
-from motion.bvh import read_bvh
-from motion.retarget import BANDAI_NAMCO, bvh_to_smpl22
-from motion.transforms import mirror_joints
+from t2m.model.evaluation import probes
+from t2m.motion.bvh import read_bvh
+from t2m.motion.retarget import BANDAI_NAMCO, bvh_to_smpl22
+from t2m.motion.transforms import mirror_joints
 
 REPO = Path(__file__).resolve().parents[1]
 HUMANML3D_JOINTS = REPO / ".." / "shared" / "data" / "humanml3d-sample" / "new_joints_012314.npy"
@@ -200,7 +200,7 @@ def test_probe_sentences_are_not_training_captions():
 def test_probe_sentences_are_not_caption_templates():
     """The same without a built dataset: no probe phrasing is part of any sentence the caption templates can make,
     for every label, style and named hand, mirrored or not (the built captions are a subset of these)."""
-    from model.captions import CONTENT_PHRASES, HANDED_PHRASES, STYLE_PHRASES, _candidates, mirror_caption
+    from t2m.model.data.captions import CONTENT_PHRASES, HANDED_PHRASES, STYLE_PHRASES, _candidates, mirror_caption
 
     templates: set[str] = set()
     for content in CONTENT_PHRASES:
@@ -220,14 +220,14 @@ def test_probe_sentences_are_not_caption_templates():
 
 @pytest.fixture(scope="module")
 def random_bundle(tmp_path_factory) -> Path:
-    from export.bundle import build_random_bundle
+    from t2m.export.bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("probe-bundle") / "tiny")
 
 
 @pytest.fixture(scope="module")
 def random_engine(random_bundle):
-    from service.engine.engine import OnnxEngine
+    from t2m.service.engine.engine import OnnxEngine
 
     return OnnxEngine.load(random_bundle, intra_op_threads=1)
 
@@ -274,7 +274,7 @@ def test_runner_cli_refuses_a_bad_bundle_or_probe(random_bundle, tmp_path, capsy
 
 # ------------------------------------------------------------------ (b) the shipped default model
 
-DEFAULT_MODEL = REPO / "models" / "default"
+DEFAULT_MODEL = REPO / "t2m" / "bundles" / "default"
 MODEL_SEEDS = (0, 1, 2, 3, 4)          # the runner's default, so these are the model card's numbers
 MODEL_MIN_PASS_RATE = 0.6
 MODEL_MAX_MEAN_JOIN_P95_RATIO = 1.0   # on average over seeds, a join no sharper than the segments' own p95 change
@@ -296,7 +296,7 @@ def default_report():
     if not (DEFAULT_MODEL / "manifest.json").is_file():
         pytest.skip(f"the default model is not committed yet ({DEFAULT_MODEL / 'manifest.json'} is absent)")
     from benchmarks.probes import run_probes
-    from service.engine.engine import OnnxEngine
+    from t2m.service.engine.engine import OnnxEngine
 
     engine = OnnxEngine.load(DEFAULT_MODEL)
     guidance = engine.limits.guidance()

@@ -27,6 +27,6 @@ def sample_joints() -> np.ndarray:
 @pytest.fixture(scope="session")
 def motions(sample_joints) -> dict[str, np.ndarray]:
     """The clips every client reads: a full 360-degree turn, and the mirrored clip facing backwards."""
-    from motion.transforms import mirror_joints
+    from t2m.motion.transforms import mirror_joints
 
     return {"turn": full_turn(sample_joints), "mirrored_backwards": yaw(mirror_joints(sample_joints), 180.0)}

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motion.bvh_export import bvh_joint_names, joints_to_bvh
-from motion.gltf import joints_to_glb
+from t2m.motion.bvh_export import bvh_joint_names, joints_to_bvh
+from t2m.motion.gltf import joints_to_glb
 
 pytestmark = pytest.mark.clients
 

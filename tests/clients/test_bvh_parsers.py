@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motion.bvh import read_bvh
-from motion.bvh_export import bvh_joint_names, joints_to_bvh
+from t2m.motion.bvh import read_bvh
+from t2m.motion.bvh_export import bvh_joint_names, joints_to_bvh
 
 pytestmark = pytest.mark.clients
 

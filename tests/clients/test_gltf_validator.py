@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from motion.gltf import joints_to_glb
+from t2m.motion.gltf import joints_to_glb
 
 pytestmark = pytest.mark.clients
 

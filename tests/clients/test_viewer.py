@@ -34,12 +34,12 @@ def bundle_dir(tmp_path_factory) -> Path:
     """T2M_TEST_BUNDLE, else the default model if it is there, else a tiny random bundle."""
     if os.environ.get("T2M_TEST_BUNDLE"):
         return Path(os.environ["T2M_TEST_BUNDLE"])
-    default = REPO / "models" / "default"
+    default = REPO / "t2m" / "bundles" / "default"
     if (default / "manifest.json").exists():
         return default
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from export.bundle import build_random_bundle
+    from t2m.export.bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
 

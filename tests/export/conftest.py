@@ -20,7 +20,7 @@ def _one_torch_thread():
 @pytest.fixture(scope="session")
 def random_bundle(tmp_path_factory):
     """A tiny random bundle (length conditioning, guidance branch), built once for the session."""
-    from export.bundle import build_random_bundle
+    from t2m.export.bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random")
 
@@ -35,7 +35,7 @@ def exported_runs(tmp_path_factory):
     import contextlib
     import io
 
-    from cli.main import main as t2m
+    from t2m.cli.main import main as t2m
     from export_run_fixtures import make_runs
 
     root = tmp_path_factory.mktemp("runs")
@@ -51,6 +51,6 @@ def exported_runs(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def minilm_encoder():
-    from model.text_encoders import MiniLMEncoder
+    from t2m.model.networks.text_encoders import MiniLMEncoder
 
     return MiniLMEncoder()

@@ -1,4 +1,4 @@
-"""Tiny training runs laid out as model/ writes them (model.checkpoint.save_checkpoint), for the export tests."""
+"""Tiny training runs laid out as model/ writes them (t2m.model.training.checkpoint.save_checkpoint), for the export tests."""
 from __future__ import annotations
 
 
@@ -9,9 +9,9 @@ def make_runs(root, cond_drop: float = 0.1, length_conditioning: bool = True, te
     import numpy as np
     import torch
 
-    from model.checkpoint import save_checkpoint
-    from model.gpt import GPTConfig, MotionGPT
-    from model.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.checkpoint import save_checkpoint
+    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     torch.manual_seed(0)
     data_dir = root / "data"

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import re
 
-from export.bench import BenchCase, run_bench
-from model.gpt import GPTConfig
-from model.vqvae import VQConfig
+from t2m.export.bench import BenchCase, run_bench
+from t2m.model.networks.gpt import GPTConfig
+from t2m.model.networks.vqvae import VQConfig
 
 
 def test_bench_prints_a_table_and_ends_with_the_speedup_line():

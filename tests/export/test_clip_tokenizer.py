@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import gzip
 
-from export.clip_tokenizer import build_clip_tokenizer, bytes_to_unicode
+from t2m.export.clip_tokenizer import build_clip_tokenizer, bytes_to_unicode
 
 MERGES = ["h e", "l l", "he ll", "hell o</w>", "w a", "wa l", "wal k", "walk s</w>"]
 

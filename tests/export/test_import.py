@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import torch
 
-from cli.main import main as t2m
-from export.bundle import build_random_bundle
-from export.graph_export import ort_session
-from export.parity import ort_greedy_rollout
-from export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
-from model.gpt import GPTConfig, MotionGPT
-from model.vqvae import MotionVQVAE, VQConfig
+from t2m.cli.main import main as t2m
+from t2m.export.bundle import build_random_bundle
+from t2m.export.graph_export import ort_session
+from t2m.export.parity import ort_greedy_rollout
+from t2m.export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
+from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 SMALL_VQ = {"width": 64, "code_dim": 32, "nb_code": 64, "down_t": 2, "depth": 3}
@@ -165,8 +165,8 @@ def test_bad_checkpoints_are_named(tmp_path, small_release, clip_sized_text_bund
 def test_import_with_a_random_clip_checkpoint(small_release, tmp_path):
     import open_clip
 
-    from export.parity import text_parity
-    from model.text_encoders import ClipEncoder
+    from t2m.export.parity import text_parity
+    from t2m.model.networks.text_encoders import ClipEncoder
 
     model = open_clip.create_model("ViT-B-32", pretrained=None)  # random weights, no download
     weights = tmp_path / "ViT-B-32.pt"

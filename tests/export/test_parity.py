@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from export.onnx_decoder import export_decoder
-from export.onnx_gpt import export_gpt_step
-from export.parity import decoder_parity, gpt_parity, text_parity
-from model.gpt import GPTConfig, MotionGPT
-from model.vqvae import MotionVQVAE, VQConfig
+from t2m.export.onnx_decoder import export_decoder
+from t2m.export.onnx_gpt import export_gpt_step
+from t2m.export.parity import decoder_parity, gpt_parity, text_parity
+from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
 TOLERANCE = 1e-4
 
@@ -34,7 +34,7 @@ def test_gpt_step_graph_matches_pytorch_over_a_50_step_guided_rollout(tmp_path, 
     report = gpt_parity(gpt, path, steps=50, guidance=3.0, batch=1)
     assert report.steps == 50 and report.rows == 2  # the cond row and the zero-condition row in one batch
     assert report.codes_identical
-    assert report.matches_sample_codes  # same codes as model.sampling.sample_codes (greedy, 50 targets)
+    assert report.matches_sample_codes  # same codes as t2m.model.sampling.sample_codes (greedy, 50 targets)
     assert report.max_abs_logit_diff <= TOLERANCE, report
     assert report.max_abs_diff_vs_recompute <= TOLERANCE, report  # KV cache == full-prefix recomputation
 
@@ -78,7 +78,7 @@ def test_minilm_text_graph_matches_the_pytorch_encoder(exported_runs, minilm_enc
 @pytest.mark.slow
 def test_the_dynamo_exporter_gives_the_same_step_graph(tmp_path, monkeypatch):
     """The alternative exporter (graph_export.USE_DYNAMO) also passes parity, P = 0 included (minutes: slow)."""
-    import export.graph_export as graph_export
+    import t2m.export.graph_export as graph_export
 
     monkeypatch.setattr(graph_export, "USE_DYNAMO", True)
     torch.manual_seed(0)

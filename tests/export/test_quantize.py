@@ -8,11 +8,11 @@ import numpy as np
 import onnx
 import torch
 
-from export.graph_export import ort_session
-from export.onnx_gpt import export_gpt_step
-from export.parity import ort_greedy_rollout
-from export.quantize import gpt_int8_report, quantize_graph, text_int8_report
-from model.gpt import GPTConfig, MotionGPT
+from t2m.export.graph_export import ort_session
+from t2m.export.onnx_gpt import export_gpt_step
+from t2m.export.parity import ort_greedy_rollout
+from t2m.export.quantize import gpt_int8_report, quantize_graph, text_int8_report
+from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from tests.export.non_vnni import ReferenceSession
 
 

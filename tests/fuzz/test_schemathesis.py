@@ -35,8 +35,8 @@ RULES_BEYOND_SCHEMA = ("total duration", "codebook size", "this model makes at m
 
 def _published_schema() -> dict:
     """The OpenAPI document the service publishes; building the app loads no model (that happens at startup)."""
-    from service.app import create_app
-    from service.settings import Settings
+    from t2m.service.app import create_app
+    from t2m.service.settings import Settings
 
     return create_app(Settings(bundle_path=Path("unused-at-schema-time"))).openapi()
 
@@ -49,7 +49,7 @@ schema = schemathesis.openapi.from_dict(_published_schema())
 def live_url(tmp_path_factory):
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from export.bundle import build_random_bundle
+    from t2m.export.bundle import build_random_bundle
 
     bundle = build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
     with running_server(bundle, env={"T2M_API_KEY": API_KEY},

@@ -1,4 +1,4 @@
-"""Action-balanced sampling (model.balancing) and its use by the GPT's length-bucketed sampler."""
+"""Action-balanced sampling (t2m.model.data.balancing) and its use by the GPT's length-bucketed sampler."""
 from __future__ import annotations
 
 from collections import Counter
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from model.balancing import OTHER, action_masses, balanced_weights, item_action
-from model.datasets import LengthBucketSampler
+from t2m.model.data.balancing import OTHER, action_masses, balanced_weights, item_action
+from t2m.model.data.datasets import LengthBucketSampler
 
 IDS = ([f"dataset-2_walk_active_{i:03d}" for i in range(90)]
        + [f"dataset-1_walk-back_sad_{i:03d}" for i in range(9)]

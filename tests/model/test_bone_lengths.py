@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import torch
 
-from model.bone_lengths import BoneLengths
-from model.train_vq import vq_loss
-from model.vqvae import MotionVQVAE, VQConfig
-from motion.features import features_to_joints
-from motion.skeleton import SMPL22
+from t2m.model.training.bone_lengths import BoneLengths
+from t2m.model.training.train_vq import vq_loss
+from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+from t2m.motion.features import features_to_joints
+from t2m.motion.skeleton import SMPL22
 from tests.model.synthetic_motion_data import SAMPLE, _source_motion
 
 torch.set_num_threads(1)

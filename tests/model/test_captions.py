@@ -1,11 +1,11 @@
-"""model.captions: several distinct, deterministic, natural captions per label pair; mirroring; the text format."""
+"""t2m.model.data.captions: several distinct, deterministic, natural captions per label pair; mirroring; the text format."""
 from __future__ import annotations
 
 import re
 
 import pytest
 
-from model.captions import (CONTENT_PHRASES, HANDED_PHRASES, STYLE_PHRASES, format_caption_line, make_captions,
+from t2m.model.data.captions import (CONTENT_PHRASES, HANDED_PHRASES, STYLE_PHRASES, format_caption_line, make_captions,
                             mirror_caption, mirror_label, parse_caption_line, pos_tag)
 
 # both datasets' labels (docs/data.md); dataset-1's `dance-long` has no clip but is a label
@@ -106,7 +106,7 @@ def test_humanml3d_line_format_and_pos_tags() -> None:
 
 
 def test_every_template_word_is_in_the_lexicon_or_an_adverb() -> None:
-    from model import captions
+    from t2m.model.data import captions
     combos = [(c, "tired") for c in CONTENT_PHRASES] + [("walk-turn-left", s) for s in STYLE_PHRASES] + \
         [(c, "normal", "left") for c in HANDED_PHRASES]  # every phrase list once; sentences are their products
     for content, style, *side in combos:

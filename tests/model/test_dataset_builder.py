@@ -1,4 +1,4 @@
-"""model.dataset_builder + model.motion_data on real Bandai-Namco clips: HumanML3D layout, shapes, mirrors with
+"""t2m.model.data.dataset_builder + t2m.model.data.motion_data on real Bandai-Namco clips: HumanML3D layout, shapes, mirrors with
 swapped captions, disjoint deterministic splits, identical output for any worker count."""
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from model.captions import mirror_caption, parse_caption_line
-from model.dataset_builder import (BuildOptions, STD_FLOOR, assign_splits, build_dataset, feature_statistics,
+from t2m.model.data.captions import mirror_caption, parse_caption_line
+from t2m.model.data.dataset_builder import (BuildOptions, STD_FLOOR, assign_splits, build_dataset, feature_statistics,
                                    find_clips, observed_side)
-from model.motion_data import MotionDirectory
-from motion.features import features_to_joints
-from motion.skeleton import SMPL22
-from motion.transforms import mirror_joints
+from t2m.model.data.motion_data import MotionDirectory
+from t2m.motion.features import features_to_joints
+from t2m.motion.skeleton import SMPL22
+from t2m.motion.transforms import mirror_joints
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_splits_are_disjoint_and_deterministic(builds) -> None:
 
 
 def test_split_assignment_is_stratified_and_exact() -> None:
-    from model.dataset_builder import ClipSource
+    from t2m.model.data.dataset_builder import ClipSource
     clips = [ClipSource(f"c{c}_{s}_{k}", "", f"c{c}", f"s{s}") for c in range(3) for s in range(2) for k in range(20)]
     splits = assign_splits(clips)
     assert sorted(splits.values()).count("val") == 12 and sorted(splits.values()).count("test") == 12
@@ -192,7 +192,7 @@ def test_motion_directory_reads_kit_layout_and_names_problems(tmp_path: Path) ->
 
 
 def test_cli_builds_and_reports_bad_sources_in_one_line(bandai_dir: Path, tmp_path: Path, capsys) -> None:
-    from cli.main import main
+    from t2m.cli.main import main
     assert main(["data", "build", "--source", str(bandai_dir), "--out", str(tmp_path / "cli"), "--limit", "2",
                  "--no-mirror", "--workers", "1", "--quiet"]) == 0
     out = capsys.readouterr().out
@@ -208,8 +208,8 @@ def test_cli_builds_and_reports_bad_sources_in_one_line(bandai_dir: Path, tmp_pa
 def test_a_mislabelled_turn_is_caught(bandai_clip) -> None:
     """dataset-2_walk-turn-right_masculine_007 turns left (so do walk-turn-left_masculine_006/007 the other way):
     the builder captions such clips with the mirrored label."""
-    from motion.bvh import read_bvh
-    from motion.retarget import bvh_to_smpl22
+    from t2m.motion.bvh import read_bvh
+    from t2m.motion.retarget import bvh_to_smpl22
     mislabelled = bvh_to_smpl22(read_bvh(bandai_clip("dataset-2_walk-turn-right_masculine_007")))
     assert observed_side("walk-turn-right", mislabelled) == "left"
     correct = bvh_to_smpl22(read_bvh(bandai_clip("dataset-2_walk-turn-right_active_039")))

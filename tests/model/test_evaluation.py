@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from model.evaluation import (FRAMES_PER_TOKEN, Clips, EvalOptions, draw, join_windows, pelvis_velocity_jumps,
+from t2m.model.evaluation.evaluate import (FRAMES_PER_TOKEN, Clips, EvalOptions, draw, join_windows, pelvis_velocity_jumps,
                               stream_metrics, windows)
 from tests.model.synthetic_motion_data import _source_motion, make_dataset
 
@@ -41,16 +41,16 @@ def one_thread():
 @pytest.fixture
 def fast_text(request, monkeypatch):
     if "slow" not in request.keywords:
-        monkeypatch.setattr("model.text_encoders.get_text_encoder", lambda name, **kwargs: HashTextEncoder())
+        monkeypatch.setattr("t2m.model.networks.text_encoders.get_text_encoder", lambda name, **kwargs: HashTextEncoder())
 
 
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory) -> dict[str, Path]:
     """A 12-clip dataset whose test split lists every clip, and random tiny VQ / GPT / evaluator checkpoints."""
-    from model.checkpoint import save_checkpoint
-    from model.evaluator import EvaluatorConfig, MotionEvaluator
-    from model.gpt import GPTConfig, MotionGPT
-    from model.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.checkpoint import save_checkpoint
+    from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
+    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     root = tmp_path_factory.mktemp("eval")
     data = make_dataset(root / "data", train_clips=8, val_clips=3)
@@ -74,7 +74,7 @@ def _eval_args(runs: dict[str, Path], out: Path, *extra: str) -> list[str]:
 
 @pytest.mark.parametrize("text", ["hashed", pytest.param("minilm", marks=pytest.mark.slow)])
 def test_eval_writes_every_row_with_finite_numbers(tiny_runs, tmp_path, capsys, fast_text, text):
-    from cli.main import main
+    from t2m.cli.main import main
 
     out = tmp_path / "report.md"
     assert main(_eval_args(tiny_runs, out)) == 0
@@ -118,7 +118,7 @@ def test_stream_metrics_see_a_hard_cut_and_not_a_seamless_one():
 
 
 def test_eval_names_a_checkpoint_of_the_wrong_kind(tiny_runs, tmp_path, capsys):
-    from cli.main import main
+    from t2m.cli.main import main
 
     args = _eval_args(tiny_runs, tmp_path / "r.md")
     args[args.index("--evaluator") + 1] = str(tiny_runs["vq"])
@@ -127,9 +127,9 @@ def test_eval_names_a_checkpoint_of_the_wrong_kind(tiny_runs, tmp_path, capsys):
 
 
 def test_training_batches_and_validation_on_the_tiny_dataset(tiny_runs):
-    from model.evaluator import EvaluatorConfig, MotionEvaluator
-    from model.motion_data import MotionDirectory
-    from model.train_evaluator import load_pairs, make_step_fn, make_val_fn, training_batches
+    from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
+    from t2m.model.data.motion_data import MotionDirectory
+    from t2m.model.training.train_evaluator import load_pairs, make_step_fn, make_val_fn, training_batches
 
     reader = MotionDirectory(tiny_runs["data"], "train")
     captions = sorted({c for i in reader.ids for c in reader.captions(i)})
@@ -148,8 +148,8 @@ def test_training_batches_and_validation_on_the_tiny_dataset(tiny_runs):
 
 @pytest.mark.slow  # the shared training loop imports torch._dynamo (AdamW) and matplotlib: ~15 s on shared cores
 def test_train_evaluator_cli_writes_a_loadable_checkpoint(tiny_runs, tmp_path, fast_text):
-    from cli.main import main
-    from model.checkpoint import load_model, read_run_config
+    from t2m.cli.main import main
+    from t2m.model.training.checkpoint import load_model, read_run_config
 
     run = tmp_path / "ev"
     code = main(["train", "evaluator", "--data", str(tiny_runs["data"]), "--out", str(run), "--steps", "2",
@@ -190,7 +190,7 @@ def test_mpjpe_root_relative_ignores_a_root_offset_that_global_mpjpe_counts():
     same): global MPJPE counts it, root-relative MPJPE does not."""
     import numpy as np
 
-    from model.evaluation import mpjpe_mm
+    from t2m.model.evaluation.evaluate import mpjpe_mm
 
     rng = np.random.default_rng(0)
     real = [rng.normal(size=(24, 263)).astype(np.float32) * 0.05 for _ in range(3)]

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from model.evaluator import (EvaluatorConfig, MotionEvaluator, embed_motions, false_negative_mask, info_nce,
+from t2m.model.networks.evaluator import (EvaluatorConfig, MotionEvaluator, embed_motions, false_negative_mask, info_nce,
                              pad_batch)
 
 TINY = dict(width=32, n_layer=1, n_head=2, embed_dim=16, dropout=0.0)
@@ -83,7 +83,7 @@ def test_training_steps_lower_the_infonce_loss():
 
 
 def test_checkpoint_round_trip_keeps_weights_and_statistics(tmp_path):
-    from model.checkpoint import load_model, save_checkpoint
+    from t2m.model.training.checkpoint import load_model, save_checkpoint
 
     model = MotionEvaluator(EvaluatorConfig(**TINY))
     model.set_normalization(np.full(263, 0.5), np.full(263, 2.0))

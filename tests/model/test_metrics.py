@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model import metrics
+from t2m.model.evaluation import metrics
 
 
 def test_fid_of_identical_sets_is_zero():

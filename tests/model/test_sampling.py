@@ -4,8 +4,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from model.gpt import GPTConfig, MotionGPT
-from model.sampling import filter_logits, guided_logits, length_rule_mask, sample_codes
+from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.model.sampling import filter_logits, guided_logits, length_rule_mask, sample_codes
 
 torch.set_num_threads(1)
 K = 12

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from model.text_encoders import (
+from t2m.model.networks.text_encoders import (
     OPEN_CLIP_MISSING,
     ClipEncoder,
     TextEncoder,

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from model.checkpoint import load_model, save_checkpoint
-from model.datasets import TextMotionDataset, VQWindowDataset, open_split, precompute_codes
-from model.gpt import GPTConfig, MotionGPT
-from model.train_gpt import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
-from model.training import LoopSettings, infinite, lr_factor, run_training
-from model.vqvae import MotionVQVAE, VQConfig
+from t2m.model.training.checkpoint import load_model, save_checkpoint
+from t2m.model.data.datasets import TextMotionDataset, VQWindowDataset, open_split, precompute_codes
+from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.model.training.train_gpt import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
+from t2m.model.training.loop import LoopSettings, infinite, lr_factor, run_training
+from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from synthetic_motion_data import make_dataset
 
 torch.set_num_threads(1)
@@ -198,7 +198,7 @@ def test_resume_continues_from_the_saved_step(tmp_path):
 
 
 def test_cli_trains_vq_then_gpt_for_three_steps(data_dir, tmp_path, monkeypatch):
-    from cli.main import main
+    from t2m.cli.main import main
 
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     vq_run, gpt_run = tmp_path / "vq", tmp_path / "gpt"
@@ -227,7 +227,7 @@ def test_cli_trains_vq_then_gpt_for_three_steps(data_dir, tmp_path, monkeypatch)
 def test_cli_balanced_sampling_is_recorded(data_dir, tmp_path, monkeypatch):
     """--balance-power < 1 trains both stages with action-balanced draws and records the masses it used (and the
     GPT its --cond-noise); out-of-range values are refused with exit code 2."""
-    from cli.main import main
+    from t2m.cli.main import main
 
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     vq_run, gpt_run = tmp_path / "vq", tmp_path / "gpt"
@@ -254,7 +254,7 @@ def test_cli_balanced_sampling_is_recorded(data_dir, tmp_path, monkeypatch):
 
 def test_cli_records_the_bone_weight_and_refuses_a_negative_one(data_dir, tmp_path):
     """--bone-weight reaches the loss (its part is logged), is recorded, and a negative weight is refused."""
-    from cli.main import main
+    from t2m.cli.main import main
 
     run = tmp_path / "vq"
     assert main(["train", "vq", "--data", str(data_dir), "--out", str(run), "--width", "16", "--code-dim", "8",

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from motion.bvh import BvhError, BvhMotion, read_bvh, write_bvh
-from motion.quaternion import euler_to_quat, quat_to_matrix
+from t2m.motion.bvh import BvhError, BvhMotion, read_bvh, write_bvh
+from t2m.motion.quaternion import euler_to_quat, quat_to_matrix
 
 # A root with 6 channels, a joint with 3 rotation channels, one End Site. Hand-computable FK:
 # frame 0: no rotation -> root (1,2,3), arm (11,2,3), tip (16,2,3)

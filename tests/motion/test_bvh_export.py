@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motion.bvh import read_bvh
-from motion.bvh_export import BVH_NAMES, JOINT_CHANNELS, ROOT_CHANNELS, bvh_joint_names, joints_to_bvh
-from motion.skeleton import SMPL22
-from motion.transforms import mirror_joints
+from t2m.motion.bvh import read_bvh
+from t2m.motion.bvh_export import BVH_NAMES, JOINT_CHANNELS, ROOT_CHANNELS, bvh_joint_names, joints_to_bvh
+from t2m.motion.skeleton import SMPL22
+from t2m.motion.transforms import mirror_joints
 from tests.headings import full_turn, yaw
 
 

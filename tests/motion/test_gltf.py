@@ -5,10 +5,10 @@ import numpy as np
 import pygltflib
 import pytest
 
-from motion.bvh_export import bvh_joint_names
-from motion.gltf import glb_joint_positions, joints_to_glb
-from motion.quaternion import quat_to_matrix
-from motion.transforms import mirror_joints
+from t2m.motion.bvh_export import bvh_joint_names
+from t2m.motion.gltf import glb_joint_positions, joints_to_glb
+from t2m.motion.quaternion import quat_to_matrix
+from t2m.motion.transforms import mirror_joints
 
 NAMES = bvh_joint_names()
 

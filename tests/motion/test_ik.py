@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motion.ik import joints_to_rotations, motion_offsets, rotations_to_joints
-from motion.quaternion import qmul, qfrom_axis_angle
-from motion.skeleton import SMPL22
-from motion.transforms import mirror_joints
+from t2m.motion.ik import joints_to_rotations, motion_offsets, rotations_to_joints
+from t2m.motion.quaternion import qmul, qfrom_axis_angle
+from t2m.motion.skeleton import SMPL22
+from t2m.motion.transforms import mirror_joints
 from tests.headings import full_turn, yaw
 
 NAMES = SMPL22.joint_names

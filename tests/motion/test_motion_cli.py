@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli.main import main
+from t2m.cli.main import main
 
 REPO = Path(__file__).resolve().parents[2]
 BANDAI = Path(os.environ.get("T2M_BANDAI_DIR", "/work/scratch/dataset"))
@@ -71,7 +71,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, make_input, argv, me
 def test_no_traceback_from_the_real_command(tmp_path):
     bad = tmp_path / "bad.npy"
     np.save(bad, np.zeros((3, 5), np.float32))
-    result = subprocess.run([sys.executable, "-m", "cli", "motion", "joints", str(bad), "-o", str(tmp_path / "o.npy")],
+    result = subprocess.run([sys.executable, "-m", "t2m.cli", "motion", "joints", str(bad), "-o", str(tmp_path / "o.npy")],
                             cwd=REPO, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
@@ -83,7 +83,7 @@ def test_from_bvh_on_a_real_bandai_namco_clip(tmp_path, capsys):
     clips = sorted(BANDAI.glob("Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk_normal_*.bvh"))
     if not clips:
         pytest.skip(f"no Bandai-Namco walk clip under {BANDAI} (set T2M_BANDAI_DIR)")
-    pytest.importorskip("motion.retarget")
+    pytest.importorskip("t2m.motion.retarget")
     out = tmp_path / "walk.npy"
     code, stdout, err = run(capsys, "motion", "from-bvh", str(clips[0]), "--map", "bandai-namco", "--fps", "20",
                             "-o", str(out))

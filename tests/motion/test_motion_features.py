@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motion.features import (
+from t2m.motion.features import (
     features_to_joints,
     feature_dim,
     forward_kinematics,
@@ -13,9 +13,9 @@ from motion.features import (
     validate_features,
     validate_joints,
 )
-from motion.quaternion import qfrom_axis_angle, qrot
-from motion.skeleton import KIT21, SMPL22, get_skeleton
-from motion.transforms import facing_angle
+from t2m.motion.quaternion import qfrom_axis_angle, qrot
+from t2m.motion.skeleton import KIT21, SMPL22, get_skeleton
+from t2m.motion.transforms import facing_angle
 
 ROOT, RIC, ROTATIONS, VELOCITIES, CONTACTS = (
     slice(0, 4), slice(4, 67), slice(67, 193), slice(193, 259), slice(259, 263)
@@ -181,7 +181,7 @@ def test_degenerate_pose_is_a_value_error():
 def test_numpy_gaussian_matches_scipy():
     """HumanML3D smooths the facing with scipy's gaussian_filter1d; ours must be the same filter."""
     ndimage = pytest.importorskip("scipy.ndimage")
-    from motion.features import gaussian_smooth
+    from t2m.motion.features import gaussian_smooth
 
     values = np.random.default_rng(5).normal(size=(37, 3))  # shorter than the kernel radius: edges matter
     expected = ndimage.gaussian_filter1d(values, 20, axis=0, mode="nearest")

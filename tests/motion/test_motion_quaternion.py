@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motion.quaternion import (
+from t2m.motion.quaternion import (
     EULER_ORDERS,
     cont6d_to_matrix,
     euler_to_quat,

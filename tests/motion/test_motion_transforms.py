@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from motion.features import features_to_joints, joints_to_features
-from motion.quaternion import qfrom_axis_angle, qrot
-from motion.skeleton import KIT21, SMPL22
-from motion.transforms import facing_angle, mirror_joints, resample
+from t2m.motion.features import features_to_joints, joints_to_features
+from t2m.motion.quaternion import qfrom_axis_angle, qrot
+from t2m.motion.skeleton import KIT21, SMPL22
+from t2m.motion.transforms import facing_angle, mirror_joints, resample
 
 
 def test_mirror_twice_is_identity_and_swaps_sides(humanml3d_sample):

@@ -7,11 +7,11 @@ import functools
 import numpy as np
 import pytest
 
-from motion.bvh import read_bvh
-from motion.features import features_to_joints, joints_to_features
-from motion.retarget import BANDAI_NAMCO, JointMap, bvh_to_smpl22, map_positions
-from motion.skeleton import SMPL22
-from motion.transforms import facing_angle
+from t2m.motion.bvh import read_bvh
+from t2m.motion.features import features_to_joints, joints_to_features
+from t2m.motion.retarget import BANDAI_NAMCO, JointMap, bvh_to_smpl22, map_positions
+from t2m.motion.skeleton import SMPL22
+from t2m.motion.transforms import facing_angle
 
 CONVERTED = ["dataset-1_walk_normal_001", "dataset-1_walk-back_active_001", "dataset-1_bow_normal_001",
              "dataset-2_walk-turn-left_active_041", "dataset-2_wave-left-hand_youthful_007",

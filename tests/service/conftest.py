@@ -15,7 +15,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))   # tests/service/fakes.py
 
 REPO = Path(__file__).resolve().parents[2]
-DEFAULT_MODEL = REPO / "models" / "default"
+DEFAULT_MODEL = REPO / "t2m" / "bundles" / "default"
 
 
 @pytest.fixture(scope="session")
@@ -23,7 +23,7 @@ def random_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny random-weight bundle from export.bundle (codebook 32, max_tokens 50, length conditioning, guidance)."""
     import torch
 
-    from export.bundle import build_random_bundle
+    from t2m.export.bundle import build_random_bundle
 
     torch.set_num_threads(1)
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random", seed=0)
@@ -42,7 +42,7 @@ def bundle_without_uncond(random_bundle: Path, tmp_path_factory: pytest.TempPath
 
 @pytest.fixture(scope="session")
 def onnx_engine(random_bundle: Path):
-    from service.engine.engine import OnnxEngine
+    from t2m.service.engine.engine import OnnxEngine
 
     return OnnxEngine.load(random_bundle, intra_op_threads=1)
 
@@ -71,7 +71,7 @@ def make_client() -> Iterator[Callable]:
     """make_client(settings, engine_factory=None, ready=True) -> a started fastapi TestClient (closed afterwards)."""
     from fastapi.testclient import TestClient
 
-    from service.app import create_app
+    from t2m.service.app import create_app
 
     opened = []
 
@@ -94,8 +94,8 @@ def app_client(random_bundle: Path):
     """A TestClient on the real OnnxEngine and the random bundle."""
     from fastapi.testclient import TestClient
 
-    from service.app import create_app
-    from service.settings import Settings
+    from t2m.service.app import create_app
+    from t2m.service.settings import Settings
 
     with TestClient(create_app(Settings(bundle_path=random_bundle, intra_op_threads=1))) as client:
         wait_ready(client)
@@ -142,8 +142,8 @@ class LiveServer:
 @pytest.fixture(scope="session")
 def live_server(random_bundle: Path) -> Iterator[LiveServer]:
     """The real app (OnnxEngine, random bundle) on a real uvicorn, with an API key."""
-    from service.app import create_app
-    from service.settings import Settings
+    from t2m.service.app import create_app
+    from t2m.service.settings import Settings
 
     app = create_app(Settings(bundle_path=random_bundle, intra_op_threads=1, api_key="test-key"))
     with LiveServer(app) as server:

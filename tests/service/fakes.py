@@ -7,8 +7,8 @@ from typing import Sequence
 
 import numpy as np
 
-from motion.skeleton import SMPL22
-from service.engine.types import (GenerationCancelled, GenerationRequest, ModelLimits, Motion, SegmentSpan,
+from t2m.motion.skeleton import SMPL22
+from t2m.service.engine.types import (GenerationCancelled, GenerationRequest, ModelLimits, Motion, SegmentSpan,
                                   tokens_for_duration)
 
 FAKE_LIMITS = ModelLimits(

@@ -71,9 +71,9 @@ def test_seed_header_for_files(app_client):
 
 
 def test_bvh_answer_round_trips_through_forward_kinematics(app_client):
-    from motion.bvh import read_bvh
-    from motion.bvh_export import bvh_joint_names
-    from motion.skeleton import SMPL22
+    from t2m.motion.bvh import read_bvh
+    from t2m.motion.bvh_export import bvh_joint_names
+    from t2m.motion.skeleton import SMPL22
 
     response = app_client.post("/generate", json={**BODY, "format": "bvh"})
     assert response.status_code == 200
@@ -90,7 +90,7 @@ def test_bvh_answer_round_trips_through_forward_kinematics(app_client):
 
 
 def test_glb_answer(app_client):
-    from motion.gltf import glb_joint_positions
+    from t2m.motion.gltf import glb_joint_positions
 
     response = app_client.post("/generate", json={**BODY, "format": "glb"})
     assert response.status_code == 200
@@ -112,7 +112,7 @@ def test_model_limits_are_422(app_client):
 
 
 def test_guidance_default_and_warning_header(app_client, make_client, bundle_without_uncond):
-    from service.settings import Settings
+    from t2m.service.settings import Settings
 
     default = _json(app_client, guidance=None)
     assert default["frames"] == _json(app_client, guidance=3.0)["frames"]          # manifest default_guidance 3.0

@@ -1,4 +1,4 @@
-"""service.engine.bundle refuses broken bundles with a BundleError naming the file or field."""
+"""The service's bundle loader (t2m.service.engine.bundle on the t2m.bundle contract) refuses broken bundles with a BundleError naming the file or field."""
 from __future__ import annotations
 
 import hashlib
@@ -10,7 +10,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper
 
-from service.engine.bundle import BundleError, load_bundle
+from t2m.service.engine.bundle import BundleError, load_bundle
 
 
 @pytest.fixture
@@ -91,14 +91,15 @@ def test_size_mismatch_is_named(bundle_copy):
     (lambda m: m.update(format_version=2), "format_version"),
     (lambda m: m.pop("codebook_size"), "'codebook_size'"),
     (lambda m: m["gpt"].pop("n_head"), "'gpt.n_head'"),
-    (lambda m: m["text_encoder"].update(dim="384"), "'text_encoder.dim' must be int"),
+    (lambda m: m["text_encoder"].update(dim="384"), "'text_encoder.dim' must be a positive integer, got '384'"),
+    (lambda m: m.update(family="masked"), "'family' must be one of ['gpt']"),
     (lambda m: m.update(end_id=7), "end_id"),
     (lambda m: m["gpt"].update(block_size=10), "block_size"),
     (lambda m: m.update(residual_layers=2), "residual_layers"),
-    (lambda m: m["gpt"].update(n_layer=3), "past_kv axis 0 is 2, manifest gpt.n_layer says 3"),
-    (lambda m: m["text_encoder"].update(dim=16), "text_features axis 1 is 32, manifest text_encoder.dim says 16"),
-    (lambda m: m.update(codebook_size=40, end_id=40), "logits axis 1 is 33"),
-    (lambda m: m.update(feature_dim=251), "features axis 2 is 263"),
+    (lambda m: m["gpt"].update(n_layer=3), "input 'past_kv' has size 2 on axis 0, the manifest implies 3"),
+    (lambda m: m["text_encoder"].update(dim=16), "text_encoder.onnx: output 'text_features' has size 32 on axis 1, the manifest implies 16"),
+    (lambda m: m.update(codebook_size=40, end_id=40), "'logits' has size 33 on axis 1, the manifest implies 41"),
+    (lambda m: m.update(feature_dim=251), "'features' has size 263 on axis 2, the manifest implies 251"),
     (lambda m: m["files"].pop("decoder.onnx"), "does not list 'decoder.onnx'"),
 ])
 def test_manifest_problems_are_named(bundle_copy, edit, message):

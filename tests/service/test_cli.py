@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 import pytest
 
-from cli.main import main
+from t2m.cli.main import main
 from tests.service.conftest import REPO, free_port
 
 
@@ -31,7 +31,7 @@ def test_generate_writes_all_three_formats(random_bundle, tmp_path, capsys):
     assert "100 frames" in err and "seed 5" in err
 
     assert _run(capsys, *args, "-o", str(tmp_path / "m.bvh"))[0] == 0
-    from motion.bvh import read_bvh
+    from t2m.motion.bvh import read_bvh
     assert read_bvh(tmp_path / "m.bvh").num_frames == 100
     assert _run(capsys, *args, "-o", str(tmp_path / "m.glb"))[0] == 0
     assert (tmp_path / "m.glb").read_bytes()[:4] == b"glTF"
@@ -50,7 +50,7 @@ def test_generate_matches_the_api(random_bundle, tmp_path, capsys, app_client):
 
 
 def test_duration_belongs_to_the_sentence_before_it():
-    from cli.commands.generate import segments_from_args
+    from t2m.cli.commands.generate import segments_from_args
 
     events = [("--then", "b"), ("--duration", 2.0), ("--then", "c")]
     assert segments_from_args("a", events) == [{"text": "a", "duration": None}, {"text": "b", "duration": 2.0},
@@ -90,7 +90,7 @@ def test_serve_command_runs_the_service(random_bundle):
     """`t2m serve` as the container runs it: a subprocess answering /health and /generate."""
     port = free_port()
     env = {**os.environ, "T2M_INTRA_OP_THREADS": "1", "T2M_API_KEY": ""}
-    process = subprocess.Popen([sys.executable, "-m", "cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+    process = subprocess.Popen([sys.executable, "-m", "t2m.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
                                 "--model", str(random_bundle)], cwd=REPO, env=env,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:

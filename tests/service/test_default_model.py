@@ -1,15 +1,15 @@
-"""The committed default model (models/default) through the engine and the API; skipped until it is committed."""
+"""The committed default model (t2m/bundles/default) through the engine and the API; skipped until it is committed."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from service.engine.types import GenerationRequest, SegmentRequest
+from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
 
 @pytest.fixture(scope="module")
 def default_engine(default_model):
-    from service.engine.engine import OnnxEngine
+    from t2m.service.engine.engine import OnnxEngine
 
     return OnnxEngine.load(default_model)          # verifies every file's sha256
 
@@ -21,7 +21,7 @@ def test_default_bundle_manifest(default_engine):
 
 
 def test_default_model_makes_a_plausible_walk(default_engine):
-    from motion.skeleton import SMPL22
+    from t2m.motion.skeleton import SMPL22
 
     motion = default_engine.generate(GenerationRequest(
         segments=[SegmentRequest("a person walks forward", 3.0), SegmentRequest("a person waves", 2.0)], seed=0,
@@ -42,7 +42,7 @@ def test_default_model_makes_a_plausible_walk(default_engine):
                    "and glb exports are rigid (IK onto the motion's own bone lengths); forcing one length per bone on "
                    "the JSON joints lowered raised wrists and the raise-hand probes, so it is not done.")
 def test_default_model_keeps_bone_lengths(default_engine):
-    from motion.skeleton import SMPL22
+    from t2m.motion.skeleton import SMPL22
 
     motion = default_engine.generate(GenerationRequest(
         segments=[SegmentRequest("a person walks forward", 3.0), SegmentRequest("a person waves", 2.0)], seed=0,
@@ -53,10 +53,10 @@ def test_default_model_keeps_bone_lengths(default_engine):
 
 
 def test_default_model_bvh_round_trip(default_engine):
-    from motion.bvh import read_bvh
-    from motion.bvh_export import bvh_joint_names
-    from motion.skeleton import SMPL22
-    from service.formats import motion_bvh
+    from t2m.motion.bvh import read_bvh
+    from t2m.motion.bvh_export import bvh_joint_names
+    from t2m.motion.skeleton import SMPL22
+    from t2m.service.formats import motion_bvh
 
     motion = default_engine.generate(GenerationRequest(segments=[SegmentRequest("a person turns around", 4.0)],
                                                        seed=1, guidance=1.0))
@@ -67,7 +67,7 @@ def test_default_model_bvh_round_trip(default_engine):
 
 
 def test_default_model_through_the_api(default_model, make_client):
-    from service.settings import Settings
+    from t2m.service.settings import Settings
 
     client = make_client(Settings(bundle_path=default_model))
     assert client.get("/health").json()["status"] == "ok"

@@ -29,12 +29,12 @@ def _instruction(text: str, name: str) -> list[str]:
 def test_entrypoint_is_the_local_serve_command():
     (entrypoint,) = _instruction(_dockerfile(), "ENTRYPOINT")
     assert json.loads(entrypoint) == ENTRYPOINT
-    from cli.main import build_parser
+    from t2m.cli.main import build_parser
 
     args = build_parser(ENTRYPOINT[1]).parse_args(ENTRYPOINT[1:])
     assert args.command == "serve" and args.host == "0.0.0.0" and args.port == 8000
     scripts = re.search(r"\[project\.scripts\]\s*t2m = \"([\w.:]+)\"", (REPO / "pyproject.toml").read_text())
-    assert scripts and scripts.group(1) == "cli.main:main"
+    assert scripts and scripts.group(1) == "t2m.cli.main:main"
 
 
 def test_dockerfile_is_multistage_non_root_with_model_and_healthcheck():
@@ -45,12 +45,12 @@ def test_dockerfile_is_multistage_non_root_with_model_and_healthcheck():
     assert "torch" not in " ".join(_instruction(runtime, "RUN"))
     users = _instruction(runtime, "USER")
     assert users and users[-1] not in ("root", "0")
-    assert any("models/default" in line for line in _instruction(runtime, "COPY"))
     (health,) = _instruction(text, "HEALTHCHECK")
     assert "http://127.0.0.1:8000/health" in health
-    assert "T2M_MODEL_DIR=/app/models/default" in text
-    ignored = (REPO / ".dockerignore").read_text().split()
-    assert "!models/default" in ignored and "tests" in ignored
+    assert "T2M_MODEL_DIR" not in text  # the default model is inside the installed wheel
+    ignored = [line.strip() for line in (REPO / ".dockerignore").read_text().splitlines()
+               if line.strip() and not line.startswith("#")]
+    assert "tests" in ignored and not any(line.startswith("t2m") for line in ignored)
 
 
 def _health_url(service: dict) -> str:
@@ -82,7 +82,7 @@ def test_scale_compose_and_nginx():
     assert (REPO / source).is_file() and target == "/etc/nginx/nginx.conf"
     conf = (REPO / "deploy" / "nginx.conf").read_text()
     assert re.search(r"server t2m:8000\b", conf)
-    from service.settings import Settings
+    from t2m.service.settings import Settings
 
     limit = re.search(r"client_max_body_size (\d+)k;", conf)
     assert limit and int(limit.group(1)) * 1024 == Settings().max_body_bytes
@@ -104,8 +104,10 @@ def test_nginx_accepts_the_config(tmp_path):
 def test_runtime_imports_need_no_torch():
     """What the image runs (`t2m` parser, app, engine, formats, SDK) imports with torch made unimportable."""
     code = ("import sys; sys.modules['torch'] = None\n"
-            "from cli.main import build_parser; build_parser('serve'); build_parser('generate'); build_parser('motion')\n"
-            "import service.app, service.engine.engine, service.formats, motion.gltf, motion.bvh_export, client\n"
+            "from t2m.cli.main import build_parser; build_parser('serve'); build_parser('generate'); "
+            "build_parser('motion')\n"
+            "import t2m.service.app, t2m.service.engine.engine, t2m.service.formats, t2m.motion.gltf, "
+            "t2m.motion.bvh_export, t2m.client\n"
             "print('ok')")
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr[-2000:]

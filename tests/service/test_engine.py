@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
+from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
 
 
 def _request(seed=1, guidance=3.0, durations=(3.0, None, 0.5), **options) -> GenerationRequest:
@@ -54,7 +54,7 @@ def test_cancelled_request_is_not_generated(onnx_engine):
 
 
 def test_guidance_without_unconditional_branch_is_flagged(bundle_without_uncond):
-    from service.engine.engine import OnnxEngine
+    from t2m.service.engine.engine import OnnxEngine
 
     engine = OnnxEngine.load(bundle_without_uncond, intra_op_threads=1)
     assert engine.limits.unconditional_branch is False
@@ -71,7 +71,7 @@ def test_engine_checks_limits_itself(onnx_engine):
 
 
 def test_joint_names_and_parents_come_from_the_skeleton(onnx_engine):
-    from motion.skeleton import SMPL22
+    from t2m.motion.skeleton import SMPL22
 
     assert onnx_engine.limits.joint_names == SMPL22.joint_names
     assert onnx_engine.limits.parents == tuple(SMPL22.parents)

@@ -6,7 +6,7 @@ import time
 
 from fakes import FakeEngine
 
-from service.settings import Settings
+from t2m.service.settings import Settings
 
 BODY = {"segments": [{"text": "a person walks", "duration": 1.0}], "seed": 1}
 
@@ -189,7 +189,7 @@ class _FailingEngine(FakeEngine):
 
 
 def test_engine_limit_error_is_422_naming_the_field(make_client):
-    from service.engine.types import RequestLimitError
+    from t2m.service.engine.types import RequestLimitError
 
     error = RequestLimitError("segments.0.duration: needs 60 tokens, the model makes at most 50")
     client = make_client(Settings(), engine_factory=lambda s: _FailingEngine(error))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fakes import FakeEngine
 
-from client import (AsyncT2MClient, AuthError, Motion, OverloadedError, Segment, ServerError, T2MClient,
+from t2m.client import (AsyncT2MClient, AuthError, Motion, OverloadedError, Segment, ServerError, T2MClient,
                     T2MConnectionError, ValidationError)
 from tests.service.conftest import LiveServer, free_port
 
@@ -98,8 +98,8 @@ def test_async_sdk(live_server, tmp_path):
 
 
 def test_sdk_overload_and_timeout_errors():
-    from service.app import create_app
-    from service.settings import Settings
+    from t2m.service.app import create_app
+    from t2m.service.settings import Settings
 
     gate = threading.Event()
     engine = FakeEngine(gate=gate)

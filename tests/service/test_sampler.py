@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.engine.sampler import SamplingJob, sample_codes, sample_tokens
+from t2m.service.engine.sampler import SamplingJob, sample_codes, sample_tokens
 
 V = 8          # codebook size of the scripted step
 END = V
@@ -125,9 +125,9 @@ def torch_bundle(tmp_path_factory):
     """A tiny GPT (End logits amplified so free segments end at varied lengths) exported next to its module."""
     import torch
 
-    from export.exporter import export_bundle, tiny_text_source
-    from model.gpt import GPTConfig, MotionGPT
-    from model.vqvae import MotionVQVAE, VQConfig
+    from t2m.export.exporter import export_bundle, tiny_text_source
+    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     torch.set_num_threads(1)
     torch.manual_seed(3)
@@ -148,8 +148,8 @@ def torch_bundle(tmp_path_factory):
 def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
     import torch
 
-    from model.sampling import sample_codes as torch_sample_codes
-    from service.engine.engine import OnnxEngine
+    from t2m.model.sampling import sample_codes as torch_sample_codes
+    from t2m.service.engine.engine import OnnxEngine
 
     path, gpt = torch_bundle
     engine = OnnxEngine.load(path, intra_op_threads=1)

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from service.settings import Settings, default_bundle_path
+from t2m.service.settings import Settings, default_bundle_path
 from tests.service.conftest import REPO
 
 
@@ -14,7 +14,7 @@ def test_defaults(monkeypatch):
     for name in ("T2M_MODEL_DIR", "T2M_BUNDLE_PATH", "T2M_API_KEY", "T2M_CORS_ORIGINS"):
         monkeypatch.delenv(name, raising=False)
     settings = Settings()
-    assert settings.bundle_path == default_bundle_path() == REPO / "models" / "default"
+    assert settings.bundle_path == default_bundle_path() == REPO / "t2m" / "bundles" / "default"
     assert settings.api_key is None and settings.cors_origins == []
     assert settings.max_queue >= 1 and settings.request_timeout_s > 0 and settings.max_body_bytes >= 1024
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 import pytest
 from fakes import FakeEngine
 
-from service.engine.types import tokens_for_duration
-from service.schemas import GenerateRequest, to_generation_request
-from service.settings import Settings
+from t2m.service.engine.types import tokens_for_duration
+from t2m.service.schemas import GenerateRequest, to_generation_request
+from t2m.service.settings import Settings
 
 OK = {"text": "a person walks forward", "duration": 3.0}
 
@@ -15,7 +15,7 @@ OK = {"text": "a person walks forward", "duration": 3.0}
 def client():
     from fastapi.testclient import TestClient
 
-    from service.app import create_app
+    from t2m.service.app import create_app
     from tests.service.conftest import wait_ready
 
     with TestClient(create_app(Settings(), engine_factory=lambda s: FakeEngine())) as test_client:
@@ -128,7 +128,7 @@ def test_openapi_is_generated_from_the_schemas(client):
 
 
 def test_model_limits_resolve_the_guidance_default():
-    from service.engine.types import ModelLimits
+    from t2m.service.engine.types import ModelLimits
 
     guided = ModelLimits(name="m", version="1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=512,
                          default_guidance=3.0, unconditional_branch=True)

@@ -6,10 +6,10 @@ from pathlib import Path
 
 from fastapi.testclient import TestClient
 
-from service.app import create_app
-from service.settings import Settings
+from t2m.service.app import create_app
+from t2m.service.settings import Settings
 
-STATIC = Path(__file__).resolve().parents[2] / "service" / "static"
+STATIC = Path(__file__).resolve().parents[2] / "t2m" / "service" / "static"
 
 
 def _client() -> TestClient:

@@ -1,7 +1,0 @@
-"""The t2m Python SDK: `T2MClient` / `AsyncT2MClient` over httpx. Imports nothing of the service."""
-from client.client import AsyncT2MClient, T2MClient
-from client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
-from client.models import Health, ModelInfo, Motion, RawResult, Segment, SegmentSpan
-
-__all__ = ["T2MClient", "AsyncT2MClient", "Segment", "SegmentSpan", "Motion", "ModelInfo", "Health", "RawResult",
-           "T2MError", "ValidationError", "AuthError", "OverloadedError", "ServerError", "T2MConnectionError"]

@@ -1,0 +1,16 @@
+"""The bundle contract (docs/contracts.md "The bundle"), written once and read by both the exporter and the service.
+
+Torch-free and onnxruntime-free (json + numpy only): `t2m.export` writes and re-checks bundles with it, and
+`t2m.service` loads them with it. A bundle problem is always a `BundleError` naming the file or manifest field.
+"""
+from __future__ import annotations
+
+from t2m.bundle.errors import BundleError
+from t2m.bundle.files import check_files, files_table, sha256_of
+from t2m.bundle.graphs import DeclaredTensor, GraphSpec, TensorSpec, check_graph_io, expected_graphs
+from t2m.bundle.manifest import (FAMILIES, FORMAT_VERSION, MANIFEST_NAME, OPTIONAL_FILES, REQUIRED_FILES, Manifest,
+                                 check_manifest_fields, parse_manifest, read_manifest, read_manifest_dict)
+
+__all__ = ["BundleError", "check_files", "files_table", "sha256_of", "DeclaredTensor", "GraphSpec", "TensorSpec", "check_graph_io",
+           "expected_graphs", "FAMILIES", "FORMAT_VERSION", "MANIFEST_NAME", "OPTIONAL_FILES", "REQUIRED_FILES",
+           "Manifest", "check_manifest_fields", "parse_manifest", "read_manifest", "read_manifest_dict"]

@@ -1,0 +1,95 @@
+"""The graphs' signatures: which inputs and outputs each ONNX file of a bundle must declare, for its manifest.
+
+Both readers of graphs use `check_graph_io`: the exporter feeds it what `onnx` reads from the file, the service what
+onnxruntime's session declares, so a bundle passes or fails the same check in both places.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from t2m.bundle.errors import BundleError
+
+__all__ = ["TensorSpec", "GraphSpec", "DeclaredTensor", "expected_graphs", "check_graph_io"]
+
+INT64 = "int64"
+FLOAT32 = "float32"
+
+
+@dataclass(frozen=True)
+class TensorSpec:
+    """Name, element type and shape of one graph input/output; an int dim is checked, None is free (dynamic)."""
+
+    name: str
+    dtype: str
+    shape: tuple[int | None, ...]
+
+
+@dataclass(frozen=True)
+class GraphSpec:
+    inputs: tuple[TensorSpec, ...]
+    outputs: tuple[TensorSpec, ...]
+
+
+@dataclass(frozen=True)
+class DeclaredTensor:
+    """What a graph file declares for one input/output: dims are ints where fixed, else a name or None."""
+
+    name: str
+    dtype: str
+    shape: tuple[int | str | None, ...]
+
+
+def expected_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
+    """The input/output names, types and (static where known) dims each graph must have for this manifest."""
+    gpt = manifest["gpt"]
+    dim = manifest["text_encoder"]["dim"]
+    kv = (gpt["n_layer"], 2, None, gpt["n_head"], None, gpt["head_dim"])
+    step_inputs = [TensorSpec("cond", FLOAT32, (None, dim)), TensorSpec("token", INT64, (None,)),
+                   TensorSpec("position", INT64, (1,))]
+    if gpt["length_conditioning"]:
+        step_inputs.append(TensorSpec("length", INT64, (None,)))
+    step_inputs.append(TensorSpec("past_kv", FLOAT32, kv))
+    residual = manifest["residual_layers"]
+    codes_shape: tuple[int | None, ...] = (None, None) if residual == 1 else (None, None, residual)
+    return {
+        "text_encoder.onnx": GraphSpec(
+            inputs=(TensorSpec("input_ids", INT64, (None, None)), TensorSpec("attention_mask", INT64, (None, None))),
+            outputs=(TensorSpec("text_features", FLOAT32, (None, dim)),)),
+        "gpt_step.onnx": GraphSpec(
+            inputs=tuple(step_inputs),
+            outputs=(TensorSpec("logits", FLOAT32, (None, manifest["codebook_size"] + 1)),
+                     TensorSpec("present_kv", FLOAT32, kv))),
+        "decoder.onnx": GraphSpec(
+            inputs=(TensorSpec("codes", INT64, codes_shape),),
+            outputs=(TensorSpec("features", FLOAT32, (None, None, manifest["feature_dim"])),)),
+    }
+
+
+def _check_tensors(file: str, role: str, declared: Sequence[DeclaredTensor], expected: tuple[TensorSpec, ...]) -> None:
+    found = {tensor.name: tensor for tensor in declared}
+    for spec in expected:
+        if spec.name not in found:
+            raise BundleError(f"{file}: graph has no {role} {spec.name!r} (has {sorted(found)})")
+        tensor = found[spec.name]
+        if tensor.dtype != spec.dtype:
+            raise BundleError(f"{file}: {role} {spec.name!r} has type {tensor.dtype}, expected {spec.dtype}")
+        if len(tensor.shape) != len(spec.shape):
+            raise BundleError(f"{file}: {role} {spec.name!r} has rank {len(tensor.shape)}, expected "
+                              f"{len(spec.shape)}")
+        for axis, (got, want) in enumerate(zip(tensor.shape, spec.shape)):
+            if want is not None and isinstance(got, int) and got != want:
+                raise BundleError(f"{file}: {role} {spec.name!r} has size {got} on axis {axis}, the manifest "
+                                  f"implies {want}")
+    unexpected = set(found) - {spec.name for spec in expected}
+    if unexpected:
+        raise BundleError(f"{file}: unexpected graph {role}s {sorted(unexpected)} (the manifest implies "
+                          f"{[spec.name for spec in expected]})")
+
+
+def check_graph_io(file: str, inputs: Sequence[DeclaredTensor], outputs: Sequence[DeclaredTensor],
+                   spec: GraphSpec) -> None:
+    """Names, element types, ranks and static dims of a graph's declared inputs and outputs against `spec`."""
+    _check_tensors(file, "input", inputs, spec.inputs)
+    _check_tensors(file, "output", outputs, spec.outputs)

@@ -1,0 +1,215 @@
+"""manifest.json: its fields, their types and consistency rules, and the typed view the loaders use.
+
+One table (`MANIFEST_FIELDS`) says what every field must be; `check_manifest_fields` applies it to the raw JSON and
+`parse_manifest` turns checked JSON into a `Manifest`. Optional fields have defaults that keep older bundles valid:
+`family` ("gpt", the only family of format 1's first bundles) and `caption_index` (null: the bundle carries no
+index of its training captions, e.g. an imported release).
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from t2m.bundle.errors import BundleError
+
+__all__ = ["FORMAT_VERSION", "MANIFEST_NAME", "REQUIRED_FILES", "OPTIONAL_FILES", "FAMILIES", "MANIFEST_FIELDS",
+           "CaptionIndexInfo", "Manifest", "check_manifest_fields", "parse_manifest", "read_manifest_dict",
+           "read_manifest"]
+
+FORMAT_VERSION = 1
+MANIFEST_NAME = "manifest.json"
+REQUIRED_FILES = ("text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decoder.onnx", "mean.npy", "std.npy",
+                  "MODEL_CARD.md")
+CAPTION_INDEX_FILE = "caption_index.npz"
+OPTIONAL_FILES = (CAPTION_INDEX_FILE,)
+FAMILIES = ("gpt",)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_positive_int(value: Any) -> bool:
+    return _is_int(value) and value > 0
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_str(value: Any) -> bool:
+    return isinstance(value, str) and value != ""
+
+
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, bool)
+
+
+def _is_optional_str(value: Any) -> bool:
+    return value is None or _is_str(value)
+
+
+Check = Callable[[Any], bool]
+POSITIVE = (_is_positive_int, "a positive integer")
+# field path -> (check, what it must be); every field is required
+MANIFEST_FIELDS: dict[str, tuple[Check, str]] = {
+    "format_version": (lambda v: v == FORMAT_VERSION, f"the integer {FORMAT_VERSION}"),
+    "name": (_is_str, "a non-empty string"),
+    "version": (_is_str, "a non-empty string"),
+    "fps": POSITIVE,
+    "skeleton": (_is_str, "a skeleton name such as 'smpl22'"),
+    "num_joints": POSITIVE,
+    "feature_dim": POSITIVE,
+    "frames_per_token": POSITIVE,
+    "max_tokens": POSITIVE,
+    "codebook_size": POSITIVE,
+    "residual_layers": POSITIVE,
+    "end_id": (_is_int, "an integer"),
+    "gpt.n_layer": POSITIVE,
+    "gpt.n_head": POSITIVE,
+    "gpt.head_dim": POSITIVE,
+    "gpt.block_size": (lambda v: _is_int(v) and v > 1, "an integer > 1"),
+    "gpt.length_conditioning": (_is_bool, "true or false"),
+    "gpt.unconditional_branch": (_is_bool, "true or false"),
+    "gpt.default_guidance": (lambda v: _is_number(v) and v >= 0, "a number >= 0"),
+    "text_encoder.kind": (_is_str, "a string such as 'minilm' or 'clip'"),
+    "text_encoder.dim": POSITIVE,
+    "text_encoder.max_length": (lambda v: _is_int(v) and v > 1, "an integer > 1"),
+    "text_encoder.pooling": (_is_str, "a string such as 'mean' or 'eot'"),
+    "text_encoder.normalize": (_is_bool, "true or false"),
+    "text_encoder.null_condition": (lambda v: v == "zeros", "'zeros'"),
+    "training_data.name": (_is_str, "a non-empty string"),
+    "training_data.license": (_is_str, "a non-empty string"),
+    "training_data.attribution": (lambda v: isinstance(v, str), "a string"),
+    "license": (_is_str, "a non-empty string"),
+    "quantization.text_encoder": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.gpt_step": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "files": (lambda v: isinstance(v, dict) and bool(v), "an object {file name: {sha256, bytes}}"),
+}
+# optional fields: path -> (check, what it must be)
+OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
+    "family": (lambda v: v in FAMILIES, f"one of {list(FAMILIES)}"),
+    "caption_index": (lambda v: v is None or isinstance(v, dict), "null or an object"),
+    "caption_index.file": (lambda v: v == CAPTION_INDEX_FILE, f"'{CAPTION_INDEX_FILE}'"),
+    "caption_index.count": POSITIVE,
+    "caption_index.threshold": (lambda v: _is_number(v) and -1 <= v <= 1, "a cosine similarity in [-1, 1]"),
+}
+_MISSING = object()
+
+
+def _lookup(manifest: Mapping[str, Any], dotted: str, default: Any = _MISSING) -> Any:
+    value: Any = manifest
+    for part in dotted.split("."):
+        if not isinstance(value, Mapping) or part not in value:
+            if default is not _MISSING:
+                return default
+            raise BundleError(f"{MANIFEST_NAME}: missing field '{dotted}'")
+        value = value[part]
+    return value
+
+
+def check_manifest_fields(manifest: Mapping[str, Any]) -> None:
+    """Every contract field present with the right type, and the fields consistent with each other."""
+    if not isinstance(manifest, Mapping):
+        raise BundleError(f"{MANIFEST_NAME}: must hold a JSON object")
+    for dotted, (check, expected) in MANIFEST_FIELDS.items():
+        value = _lookup(manifest, dotted)
+        if not check(value):
+            raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
+    for dotted, (check, expected) in OPTIONAL_FIELDS.items():
+        value = _lookup(manifest, dotted, None)
+        if value is not None and not check(value):
+            raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
+    if manifest["end_id"] != manifest["codebook_size"]:
+        raise BundleError(f"{MANIFEST_NAME}: field 'end_id' is {manifest['end_id']}, expected codebook_size "
+                          f"{manifest['codebook_size']} (End is the last logit)")
+    block_size = manifest["gpt"]["block_size"]
+    if manifest["max_tokens"] > block_size - 1:
+        raise BundleError(f"{MANIFEST_NAME}: field 'gpt.block_size' {block_size} is smaller than max_tokens + 1 = "
+                          f"{manifest['max_tokens'] + 1}")
+    index = manifest.get("caption_index")
+    if index is not None and index.get("file") not in manifest["files"]:
+        raise BundleError(f"{MANIFEST_NAME}: field 'files' does not list the caption index {index.get('file')!r}")
+
+
+@dataclass(frozen=True)
+class CaptionIndexInfo:
+    """Where the bundle's index of training-caption text features is, and the similarity below which a sentence
+    counts as far from everything the model was trained on."""
+
+    file: str
+    count: int
+    threshold: float
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """The typed manifest (the full JSON stays available as `raw`)."""
+
+    family: str
+    name: str
+    version: str
+    fps: int
+    skeleton: str
+    num_joints: int
+    feature_dim: int
+    frames_per_token: int
+    max_tokens: int
+    codebook_size: int
+    residual_layers: int
+    end_id: int
+    n_layer: int
+    n_head: int
+    head_dim: int
+    block_size: int
+    length_conditioning: bool
+    unconditional_branch: bool
+    default_guidance: float
+    text_dim: int
+    text_max_length: int
+    caption_index: CaptionIndexInfo | None
+    files: dict[str, dict[str, Any]]
+    raw: dict[str, Any]
+
+
+def parse_manifest(raw: dict[str, Any]) -> Manifest:
+    """Check `raw` (check_manifest_fields) and return its typed view."""
+    check_manifest_fields(raw)
+    gpt, text, index = raw["gpt"], raw["text_encoder"], raw.get("caption_index")
+    return Manifest(
+        family=raw.get("family", "gpt"), name=raw["name"], version=raw["version"], fps=raw["fps"],
+        skeleton=raw["skeleton"], num_joints=raw["num_joints"], feature_dim=raw["feature_dim"],
+        frames_per_token=raw["frames_per_token"], max_tokens=raw["max_tokens"], codebook_size=raw["codebook_size"],
+        residual_layers=raw["residual_layers"], end_id=raw["end_id"], n_layer=gpt["n_layer"], n_head=gpt["n_head"],
+        head_dim=gpt["head_dim"], block_size=gpt["block_size"], length_conditioning=gpt["length_conditioning"],
+        unconditional_branch=gpt["unconditional_branch"], default_guidance=float(gpt["default_guidance"]),
+        text_dim=text["dim"], text_max_length=text["max_length"],
+        caption_index=None if index is None else CaptionIndexInfo(index["file"], index["count"],
+                                                                  float(index["threshold"])),
+        files=raw["files"], raw=raw)
+
+
+def read_manifest_dict(bundle_dir: Path) -> dict[str, Any]:
+    """The raw JSON of `bundle_dir/manifest.json` (not yet checked)."""
+    if not bundle_dir.is_dir():
+        raise BundleError(f"bundle directory {bundle_dir} does not exist")
+    path = bundle_dir / MANIFEST_NAME
+    if not path.is_file():
+        raise BundleError(f"{path}: missing file (a bundle needs {MANIFEST_NAME})")
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as error:
+        raise BundleError(f"{path}: invalid JSON at line {error.lineno}: {error.msg}") from None
+    except UnicodeDecodeError as error:
+        raise BundleError(f"{path}: not UTF-8 text ({error})") from None
+    if not isinstance(raw, dict):
+        raise BundleError(f"{path}: must hold a JSON object")
+    return raw
+
+
+def read_manifest(bundle_dir: Path) -> Manifest:
+    """Read and check `bundle_dir/manifest.json`."""
+    return parse_manifest(read_manifest_dict(bundle_dir))

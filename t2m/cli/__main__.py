@@ -1,0 +1,5 @@
+import sys
+
+from t2m.cli.main import main
+
+sys.exit(main())

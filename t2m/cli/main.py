@@ -1,0 +1,74 @@
+"""Entry point of the `t2m` command: builds the parser from the subcommand modules and runs one."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+# Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
+# `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code. Only the module of the
+# command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "motion": ("t2m.cli.commands.motion", "convert between features, joints and BVH"),
+    "data": ("t2m.cli.commands.data", "build a training set in HumanML3D's layout"),
+    "train": ("t2m.cli.commands.train", "train the VQ-VAE, the GPT or the evaluator"),
+    "eval": ("t2m.cli.commands.evaluate", "evaluate trained models (FID, R-precision, ...)"),
+    "export": ("t2m.cli.commands.export", "export trained models to an ONNX bundle"),
+    "import": ("t2m.cli.commands.importer", "import released checkpoints (T2M-GPT) as a bundle"),
+    "bench": ("t2m.cli.commands.bench", "benchmark generation speed"),
+    "serve": ("t2m.cli.commands.serve", "run the HTTP service"),
+    "generate": ("t2m.cli.commands.generate", "generate a motion file without a server"),
+}
+
+
+class CliError(Exception):
+    """A user error: printed as one line on stderr, exit code 2. Never a traceback."""
+
+
+def _selected_command(argv: Sequence[str]) -> str | None:
+    """The command named on the command line (the first word that is not an option), if any."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
+
+
+def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
+    """The parser with the selected command fully registered and the others as one-line entries for --help.
+
+    `selected=None` registers every command (used by tests and documentation tools)."""
+    parser = argparse.ArgumentParser(prog="t2m", description="Text-to-motion: data, training, export and serving.")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        if selected is None or name == selected:
+            importlib.import_module(module_name).register(subparsers)
+        else:
+            subparsers.add_parser(name, help=help_text)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_selected_command(argv) or "")
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except CliError as error:
+        print(f"t2m {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as error:
+        print(f"t2m {args.command}: error: file not found: {error.filename or error}", file=sys.stderr)
+        return 2
+    except ValueError as error:  # motion-core and bundle checks raise ValueError with a user-facing message
+        print(f"t2m {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,7 @@
+"""The t2m Python SDK: `T2MClient` / `AsyncT2MClient` over httpx. Imports nothing of the service."""
+from t2m.client.client import AsyncT2MClient, T2MClient
+from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
+from t2m.client.models import Health, ModelInfo, Motion, RawResult, Segment, SegmentSpan
+
+__all__ = ["T2MClient", "AsyncT2MClient", "Segment", "SegmentSpan", "Motion", "ModelInfo", "Health", "RawResult",
+           "T2MError", "ValidationError", "AuthError", "OverloadedError", "ServerError", "T2MConnectionError"]

@@ -1,0 +1,72 @@
+"""Request building and response interpretation shared by the sync and async clients (no I/O here)."""
+from __future__ import annotations
+
+from typing import Any
+
+import httpx
+
+from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MError, ValidationError
+from t2m.client.models import RawResult, SegmentsLike, to_segments, warnings_of
+
+__all__ = ["request_body", "raise_for_answer", "raw_result", "auth_headers", "DEFAULT_URL", "DEFAULT_TIMEOUT_S"]
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+DEFAULT_TIMEOUT_S = 120.0
+
+
+def request_body(segments: SegmentsLike, fmt: str, seed: int | None, guidance: float | None,
+                 temperature: float, top_k: int | None) -> dict[str, Any]:
+    return {"segments": [s.to_json() for s in to_segments(segments)], "format": fmt, "seed": seed,
+            "guidance": guidance, "temperature": temperature, "top_k": top_k}
+
+
+def auth_headers(api_key: str | None) -> dict[str, str]:
+    return {"Authorization": f"Bearer {api_key}"} if api_key else {}
+
+
+def _retry_after(response: httpx.Response) -> float | None:
+    try:
+        return float(response.headers["Retry-After"])
+    except (KeyError, ValueError):
+        return None
+
+
+def _detail(response: httpx.Response) -> Any:
+    try:
+        return response.json().get("detail")
+    except (ValueError, AttributeError):
+        return response.text[:500]
+
+
+def _field(loc: list[Any]) -> str:
+    parts = [str(part) for part in loc]
+    return ".".join(parts[1:] if parts and parts[0] == "body" else parts) or "body"
+
+
+def raise_for_answer(response: httpx.Response) -> None:
+    """Turn an error answer into the matching T2MError subclass; success passes."""
+    code = response.status_code
+    if code < 400:
+        return
+    detail = _detail(response)
+    if code == 422 and isinstance(detail, list):
+        fields = [_field(e.get("loc", [])) for e in detail if isinstance(e, dict)]
+        message = "; ".join(f"{_field(e.get('loc', []))}: {e.get('msg', '')}" for e in detail if isinstance(e, dict))
+        raise ValidationError(f"invalid request: {message}", fields=fields, errors=detail)
+    text = detail if isinstance(detail, str) else str(detail)
+    if code in (401, 403):
+        raise AuthError(f"HTTP {code}: {text}", code, detail)
+    if code == 429:
+        raise OverloadedError(f"HTTP 429: {text}", _retry_after(response), code, detail)
+    if code >= 500:
+        raise ServerError(f"HTTP {code}: {text}", code, detail, _retry_after(response))
+    if code in (400, 413, 422):
+        raise ValidationError(f"HTTP {code}: {text}", fields=[], errors=[{"msg": text}], status_code=code)
+    raise T2MError(f"HTTP {code}: {text}", code, detail)
+
+
+def raw_result(response: httpx.Response) -> RawResult:
+    seed = response.headers.get("X-Seed")
+    return RawResult(content=response.content, media_type=response.headers.get("content-type", ""),
+                     seed=int(seed) if seed is not None else None,
+                     warnings=warnings_of(response.headers.get("X-T2M-Warnings")))

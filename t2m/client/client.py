@@ -1,0 +1,148 @@
+"""T2MClient (sync) and AsyncT2MClient (async): the t2m HTTP API in Python, on httpx.
+
+    with T2MClient("http://127.0.0.1:8000") as t2m:
+        motion = t2m.generate([("a person walks forward", 3.0), ("a person waves", 2.0)], seed=1)
+        motion.frames.shape          # (100, 22, 3), metres
+        t2m.save_bvh("wave.bvh", [("a person waves", 2.0)])
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from t2m.client._common import (DEFAULT_TIMEOUT_S, DEFAULT_URL, auth_headers, raise_for_answer, raw_result,
+                            request_body)
+from t2m.client.errors import T2MConnectionError
+from t2m.client.models import Health, Motion, RawResult, SegmentsLike
+
+__all__ = ["T2MClient", "AsyncT2MClient"]
+
+
+class T2MClient:
+    """Synchronous client. `api_key` is sent as a bearer token; `transport` lets tests plug in any httpx transport."""
+
+    def __init__(self, base_url: str = DEFAULT_URL, *, api_key: str | None = None,
+                 timeout: float = DEFAULT_TIMEOUT_S, transport: httpx.BaseTransport | None = None) -> None:
+        self._http = httpx.Client(base_url=base_url, timeout=timeout, headers=auth_headers(api_key),
+                                  transport=transport)
+
+    def __enter__(self) -> "T2MClient":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._http.close()
+
+    def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = self._http.request(method, path, **kwargs)
+        except httpx.TransportError as error:
+            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
+        raise_for_answer(response)
+        return response
+
+    def health(self) -> Health:
+        """The server's readiness (a loading server answers status 'loading' rather than raising)."""
+        try:
+            response = self._http.get("/health")
+        except httpx.TransportError as error:
+            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
+        if response.status_code == 503:
+            return Health(**response.json())
+        raise_for_answer(response)
+        return Health(**response.json())
+
+    def generate(self, segments: SegmentsLike, *, seed: int | None = None, guidance: float | None = None,
+                 temperature: float = 1.0, top_k: int | None = None) -> Motion:
+        """Joint positions of one continuous motion for the sentences."""
+        body = request_body(segments, "json", seed, guidance, temperature, top_k)
+        return Motion.from_json(self._send("POST", "/generate", json=body).json())
+
+    def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
+                     guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None) -> RawResult:
+        """The file in format 'bvh' | 'glb' | 'json' as bytes, with the seed the server used."""
+        body = request_body(segments, fmt, seed, guidance, temperature, top_k)
+        return raw_result(self._send("POST", "/generate", json=body))
+
+    def generate_bvh(self, segments: SegmentsLike, **options: Any) -> str:
+        return self.generate_raw(segments, "bvh", **options).content.decode("utf-8")
+
+    def generate_glb(self, segments: SegmentsLike, **options: Any) -> bytes:
+        return self.generate_raw(segments, "glb", **options).content
+
+    def save_bvh(self, path: str | Path, segments: SegmentsLike, **options: Any) -> Path:
+        path = Path(path)
+        path.write_text(self.generate_bvh(segments, **options), encoding="utf-8")
+        return path
+
+    def save_glb(self, path: str | Path, segments: SegmentsLike, **options: Any) -> Path:
+        path = Path(path)
+        path.write_bytes(self.generate_glb(segments, **options))
+        return path
+
+
+class AsyncT2MClient:
+    """Asynchronous client with the same methods as T2MClient (awaitable)."""
+
+    def __init__(self, base_url: str = DEFAULT_URL, *, api_key: str | None = None,
+                 timeout: float = DEFAULT_TIMEOUT_S, transport: httpx.AsyncBaseTransport | None = None) -> None:
+        self._http = httpx.AsyncClient(base_url=base_url, timeout=timeout, headers=auth_headers(api_key),
+                                       transport=transport)
+
+    async def __aenter__(self) -> "AsyncT2MClient":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = await self._http.request(method, path, **kwargs)
+        except httpx.TransportError as error:
+            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
+        raise_for_answer(response)
+        return response
+
+    async def health(self) -> Health:
+        try:
+            response = await self._http.get("/health")
+        except httpx.TransportError as error:
+            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
+        if response.status_code == 503:
+            return Health(**response.json())
+        raise_for_answer(response)
+        return Health(**response.json())
+
+    async def generate(self, segments: SegmentsLike, *, seed: int | None = None, guidance: float | None = None,
+                       temperature: float = 1.0, top_k: int | None = None) -> Motion:
+        body = request_body(segments, "json", seed, guidance, temperature, top_k)
+        return Motion.from_json((await self._send("POST", "/generate", json=body)).json())
+
+    async def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
+                           guidance: float | None = None, temperature: float = 1.0,
+                           top_k: int | None = None) -> RawResult:
+        body = request_body(segments, fmt, seed, guidance, temperature, top_k)
+        return raw_result(await self._send("POST", "/generate", json=body))
+
+    async def generate_bvh(self, segments: SegmentsLike, **options: Any) -> str:
+        return (await self.generate_raw(segments, "bvh", **options)).content.decode("utf-8")
+
+    async def generate_glb(self, segments: SegmentsLike, **options: Any) -> bytes:
+        return (await self.generate_raw(segments, "glb", **options)).content
+
+    async def save_bvh(self, path: str | Path, segments: SegmentsLike, **options: Any) -> Path:
+        path = Path(path)
+        path.write_text(await self.generate_bvh(segments, **options), encoding="utf-8")
+        return path
+
+    async def save_glb(self, path: str | Path, segments: SegmentsLike, **options: Any) -> Path:
+        path = Path(path)
+        path.write_bytes(await self.generate_glb(segments, **options))
+        return path

@@ -1,0 +1,360 @@
+"""Assemble a bundle from PyTorch modules (``export_bundle``) or from our training runs (``export_from_runs``).
+
+``export_bundle`` is shared by the three producers of bundles: our runs (``t2m export``), the
+T2M-GPT importer (``t2m import t2m-gpt``) and the random test bundle. It exports the three graphs,
+checks them against PyTorch (float32 parity; optional), optionally quantises some of them to int8
+(and measures what that costs), writes mean/std, the tokenizer and a model card that records those
+numbers, and hands everything to :func:`export.bundle.write_bundle`, which hashes and verifies.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from t2m.export.bundle import check_out_dir, motion_fields, prepare_out_dir, render_model_card, write_bundle
+from t2m.export.onnx_decoder import export_decoder
+from t2m.export.onnx_gpt import export_gpt_step
+from t2m.export.onnx_text import export_text_graph, export_tiny_text_encoder
+from t2m.model.networks.gpt import MotionGPT
+from t2m.model.networks.vqvae import MotionVQVAE
+
+log = logging.getLogger(__name__)
+
+INT8_CHOICES = ("none", "text", "gpt", "all")
+INT8_LABEL = "int8-dynamic"
+# float32 graphs that differ from PyTorch by more than this are broken, not merely rounded differently
+GROSS_PARITY_ERROR = 1e-3
+
+
+@dataclass
+class TextSource:
+    """Writes text_encoder.onnx + tokenizer.json into a directory and returns the manifest's text_encoder entry.
+
+    ``encoder`` (a t2m.model.networks.text_encoders.TextEncoder) is kept for the parity check when there is one.
+    """
+
+    write: Callable[[Path], dict]
+    encoder: Any | None = None
+
+
+def tiny_text_source(dim: int, max_length: int, seed: int = 0) -> TextSource:
+    """The tiny random text graph (tests)."""
+    return TextSource(lambda out_dir: export_tiny_text_encoder(out_dir, dim, max_length, seed=seed))
+
+
+def encoder_text_source(encoder: Any) -> TextSource:
+    """A t2m.model.networks.text_encoders.TextEncoder (MiniLM or CLIP): its export_module and its tokenizer."""
+
+    def write(out_dir: Path) -> dict:
+        save_text_tokenizer(encoder, out_dir / "tokenizer.json")
+        ids, mask = encoder.tokenize(["a person walks forward", "someone jumps up and down twice"])
+        export_text_graph(encoder.export_module(), out_dir / "text_encoder.onnx", ids, mask)
+        return {"kind": encoder.name, "dim": int(encoder.dim), "max_length": int(encoder.max_length),
+                "pooling": encoder.pooling, "normalize": bool(encoder.normalize), "null_condition": "zeros"}
+
+    return TextSource(write, encoder)
+
+
+def save_text_tokenizer(encoder: Any, path: Path) -> Path:
+    """The encoder's tokenizer.json; CLIP's BPE is converted here (t2m.model.networks.text_encoders has no tokenizer.json for it)."""
+    if encoder.name == "clip":
+        from t2m.export.clip_tokenizer import save_clip_tokenizer
+
+        return save_clip_tokenizer(path, context_length=int(encoder.max_length))
+    return encoder.save_tokenizer(path)
+
+
+def minilm_text_source() -> TextSource:
+    from t2m.model.networks.text_encoders import MiniLMEncoder
+
+    return encoder_text_source(MiniLMEncoder())
+
+
+def clip_text_source(weights: str | Path) -> TextSource:
+    from t2m.model.networks.text_encoders import ClipEncoder
+
+    try:
+        return encoder_text_source(ClipEncoder(weights))
+    except ImportError as error:  # open_clip is an optional extra: a user error, not a crash
+        raise ValueError(str(error)) from error
+
+
+def check_int8_choice(int8: str) -> None:
+    if int8 not in INT8_CHOICES:
+        raise ValueError(f"--int8 must be one of {', '.join(INT8_CHOICES)}, got {int8!r}")
+
+
+@dataclass
+class ExportChecks:
+    """What export measured: float32 parity against PyTorch and, per quantised graph, the int8 report."""
+
+    parity: dict[str, Any] = field(default_factory=dict)
+    int8: dict[str, Any] = field(default_factory=dict)
+
+    def model_card_section(self) -> str:
+        lines: list[str] = []
+        if self.parity:
+            gpt, dec = self.parity["gpt_step"], self.parity["decoder"]
+            lines += [
+                "## Export checks (onnxruntime vs PyTorch, float32)",
+                "",
+                f"- GPT step graph: {gpt['steps']}-step greedy rollout, guidance {gpt['guidance']}: max |logit diff|"
+                f" {gpt['max_abs_logit_diff']:.2e}; code sequences identical: {gpt['codes_identical']};"
+                f" vs full-prefix recomputation {gpt['max_abs_diff_vs_recompute']:.2e}",
+                f"- decoder: max |feature diff| {dec['max_abs_diff']:.2e}",
+            ]
+            if "text_encoder" in self.parity:
+                lines.append(f"- text encoder: max |feature diff| {self.parity['text_encoder']['max_abs_diff']:.2e}")
+            lines.append("")
+        if self.int8:
+            lines += ["## int8 dynamic quantisation (vs the float32 graphs)", ""]
+            if "gpt_step" in self.int8:
+                r = self.int8["gpt_step"]
+                lines.append(
+                    f"- GPT step: max |logit diff| {r['max_abs_logit_diff']:.3f}; greedy codes identical over"
+                    f" {r['steps']} steps: {r['greedy_codes_match']}; {r['fp32_ms_per_step']:.2f} -> "
+                    f"{r['int8_ms_per_step']:.2f} ms/step; {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
+            if "text_encoder" in self.int8:
+                r = self.int8["text_encoder"]
+                lines.append(
+                    f"- text encoder: cosine to float32 features min {r['min_cosine']:.4f}, mean {r['mean_cosine']:.4f};"
+                    f" {r['fp32_ms_per_batch']:.1f} -> {r['int8_ms_per_batch']:.1f} ms per batch of 8;"
+                    f" {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
+            lines.append("")
+        return "\n".join(lines)
+
+
+def _check_parity(parity: dict[str, Any]) -> None:
+    worst = {"gpt_step": parity["gpt_step"]["max_abs_logit_diff"], "decoder": parity["decoder"]["max_abs_diff"]}
+    if "text_encoder" in parity:
+        worst["text_encoder"] = parity["text_encoder"]["max_abs_diff"]
+    for graph, diff in worst.items():
+        if not diff <= GROSS_PARITY_ERROR:
+            raise ValueError(f"{graph}.onnx differs from PyTorch by {diff:.3g} (> {GROSS_PARITY_ERROR}); not exported")
+    if not parity["gpt_step"]["codes_identical"]:
+        log.warning("gpt_step.onnx: greedy codes differ from PyTorch's (near-tie logits?): %s", parity["gpt_step"])
+
+
+def export_bundle(
+    out_dir: str | Path,
+    *,
+    vq: MotionVQVAE,
+    gpt: MotionGPT,
+    mean: np.ndarray,
+    std: np.ndarray,
+    text_source: TextSource,
+    name: str,
+    version: str,
+    unconditional_branch: bool,
+    default_guidance: float,
+    training_data: Mapping[str, str],
+    license: str,  # noqa: A002 - the manifest's field name
+    int8: str = "none",
+    notes: str = "",
+    check_parity: bool = False,
+    parity_steps: int = 50,
+) -> tuple[dict, ExportChecks]:
+    """Export ``vq`` + ``gpt`` + a text encoder as a verified bundle in ``out_dir``; return (manifest, checks).
+
+    Everything is built and verified in a sibling staging directory first and moved into ``out_dir``
+    only when complete, so a failed export leaves neither a half bundle nor a damaged earlier one.
+    """
+    check_int8_choice(int8)
+    if vq.config.nb_code != gpt.config.codebook_size:
+        raise ValueError(f"VQ codebook ({vq.config.nb_code}) and GPT codebook_size ({gpt.config.codebook_size}) differ")
+    out_dir = check_out_dir(out_dir)
+    staging = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
+    try:
+        manifest, checks = _export_into(
+            staging, vq=vq.eval(), gpt=gpt.eval(), mean=mean, std=std, text_source=text_source, name=name,
+            version=version, unconditional_branch=unconditional_branch, default_guidance=default_guidance,
+            training_data=training_data, license=license, int8=int8, notes=notes, check_parity=check_parity,
+            parity_steps=parity_steps)
+        prepare_out_dir(out_dir)
+        for file in sorted(staging.iterdir(), key=lambda f: f.name == "manifest.json"):  # manifest last
+            file.replace(out_dir / file.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return manifest, checks
+
+
+def _export_into(
+    out_dir: Path, *, vq: MotionVQVAE, gpt: MotionGPT, mean: np.ndarray, std: np.ndarray, text_source: TextSource,
+    name: str, version: str, unconditional_branch: bool, default_guidance: float, training_data: Mapping[str, str],
+    license: str, int8: str, notes: str, check_parity: bool, parity_steps: int,  # noqa: A002
+) -> tuple[dict, ExportChecks]:
+    from t2m.export.parity import bundle_parity
+    from t2m.export.quantize import gpt_int8_report, quantize_graph, text_int8_report
+
+    log.info("exporting the text encoder")
+    text_entry = text_source.write(out_dir)
+    if text_entry["dim"] != gpt.config.text_dim:
+        raise ValueError(f"text encoder dim {text_entry['dim']} != GPT text_dim {gpt.config.text_dim}")
+    log.info("exporting the GPT step graph")
+    export_gpt_step(gpt, out_dir / "gpt_step.onnx")
+    log.info("exporting the decoder")
+    export_decoder(vq, mean, std, out_dir / "decoder.onnx")
+    np.save(out_dir / "mean.npy", np.asarray(mean, dtype=np.float32))
+    np.save(out_dir / "std.npy", np.asarray(std, dtype=np.float32))
+
+    c = gpt.config
+    manifest: dict[str, Any] = {
+        "format_version": 1,
+        "name": name,
+        "version": version,
+        **motion_fields(vq.config.feat_dim, vq.config.frames_per_token, c.max_tokens),
+        "codebook_size": c.codebook_size,
+        "residual_layers": vq.config.residual_layers if vq.config.quantizer == "residual" else 1,
+        "end_id": c.end_id,
+        "gpt": {"n_layer": c.n_layer, "n_head": c.n_head, "head_dim": c.head_dim, "block_size": c.block_size,
+                "length_conditioning": bool(c.length_conditioning),
+                "unconditional_branch": bool(unconditional_branch), "default_guidance": float(default_guidance)},
+        "text_encoder": text_entry,
+        "training_data": dict(training_data),
+        "license": license,
+        "quantization": {"text_encoder": None, "gpt_step": None},
+    }
+    checks = ExportChecks()
+    if check_parity:
+        log.info("checking onnxruntime against PyTorch (float32)")
+        checks.parity = bundle_parity(out_dir, vq, gpt, text_source.encoder,
+                                      guidance=3.0 if unconditional_branch else 1.0, steps=parity_steps)
+        _check_parity(checks.parity)
+    for key, file in (("text_encoder", "text_encoder.onnx"), ("gpt_step", "gpt_step.onnx")):
+        if int8 not in ("all", "text" if key == "text_encoder" else "gpt"):
+            continue
+        log.info("quantising %s to int8", file)
+        fp32_copy = out_dir / f".{file}.fp32"
+        (out_dir / file).replace(fp32_copy)
+        try:
+            quantize_graph(fp32_copy, out_dir / file)
+            if key == "gpt_step":
+                report = gpt_int8_report(fp32_copy, out_dir / file, manifest)
+            else:
+                report = text_int8_report(fp32_copy, out_dir / file, out_dir / "tokenizer.json")
+            checks.int8[key] = asdict(report)
+        finally:
+            fp32_copy.unlink(missing_ok=True)
+        manifest["quantization"][key] = INT8_LABEL
+    card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
+    (out_dir / "MODEL_CARD.md").write_text(render_model_card(manifest, card_notes), encoding="utf-8")
+    files = {file: out_dir / file for file in
+             ("text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decoder.onnx", "mean.npy", "std.npy",
+              "MODEL_CARD.md")}
+    return write_bundle(out_dir, files, manifest), checks
+
+
+# ------------------------------------------------------------------------------------------- from our runs
+
+def _run_record(run_dir: Path) -> dict[str, Any]:
+    from t2m.model.training.checkpoint import read_run_config
+
+    return read_run_config(run_dir)
+
+
+def _normalisation(vq_run: Path, record: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """mean/std the VQ was trained with: the run's mean.npy/std.npy, else the data directory's Mean.npy/Std.npy."""
+    candidates = [(vq_run / "mean.npy", vq_run / "std.npy")]
+    data_dir = record.get("data", {}).get("data_dir")
+    if data_dir:
+        candidates.append((Path(data_dir) / "Mean.npy", Path(data_dir) / "Std.npy"))
+    for mean_path, std_path in candidates:
+        if mean_path.is_file() and std_path.is_file():
+            return np.load(mean_path).astype(np.float32), np.load(std_path).astype(np.float32)
+    raise FileNotFoundError(str(candidates[0][0]))
+
+
+def training_data_entry(summary_path: Path) -> dict[str, str]:
+    """{name, license, attribution} from a dataset's summary.json (written by `t2m data build`)."""
+    if not summary_path.is_file():
+        raise FileNotFoundError(str(summary_path))
+    try:
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{summary_path}: not valid JSON ({error})") from error
+    for key in ("name", "license"):
+        if not isinstance(summary.get(key), str) or not summary[key]:
+            raise ValueError(f"{summary_path}: field '{key}' is missing; the bundle must state the training data licence")
+    attribution = summary.get("attribution", "")
+    if summary.get("captions"):
+        attribution = f"{attribution} Captions: {summary['captions']}.".strip()
+    return {"name": summary["name"], "license": summary["license"], "attribution": attribution}
+
+
+def export_from_runs(
+    vq_run: str | Path,
+    gpt_run: str | Path,
+    out_dir: str | Path,
+    *,
+    text_encoder: str | None = None,
+    clip_weights: str | Path | None = None,
+    int8: str = "none",
+    name: str | None = None,
+    version: str = "0.1.0",
+    model_card: str | Path | None = None,
+    data_summary: str | Path | None = None,
+    default_guidance: float | None = None,
+    check_parity: bool = True,
+    text_source: TextSource | None = None,
+) -> tuple[dict, ExportChecks]:
+    """A verified bundle from a VQ run and a GPT run (t2m.model.training.checkpoint layout).
+
+    ``text_source`` replaces building the run's text encoder (tests pass an already loaded MiniLM).
+    """
+    from t2m.model.training.checkpoint import load_model
+
+    check_int8_choice(int8)
+    vq_run, gpt_run = Path(vq_run), Path(gpt_run)
+    vq_record, gpt_record = _run_record(vq_run), _run_record(gpt_run)
+    for run, record, expected in ((vq_run, vq_record, "vq"), (gpt_run, gpt_record, "gpt")):
+        if record["kind"] != expected:
+            raise ValueError(f"{run}/config.json: expected a {expected} checkpoint, found {record['kind']!r}")
+    gpt_data = gpt_record.get("data", {})
+    trained_with = gpt_data.get("vq_run")
+    if trained_with and Path(trained_with).exists() and Path(trained_with).resolve() != vq_run.resolve():
+        raise ValueError(f"{gpt_run}: the GPT was trained on the codes of {trained_with}, not of {vq_run}")
+    run_text = (gpt_data.get("text_encoder") or {}).get("kind")
+    kind = text_encoder or run_text or "minilm"
+    if run_text and kind != run_text:
+        raise ValueError(f"--text-encoder {kind}: the GPT run was trained with the {run_text} text encoder")
+    if kind not in ("minilm", "clip"):
+        raise ValueError(f"--text-encoder must be minilm or clip, got {kind!r}")
+    if kind == "clip":
+        clip_weights = clip_weights or gpt_data.get("text_encoder", {}).get("clip_weights")
+        if not clip_weights:
+            raise ValueError("--clip-weights is required for the clip text encoder")
+
+    if data_summary is None:
+        data_dir = gpt_data.get("data_dir") or vq_record.get("data", {}).get("data_dir")
+        if not data_dir:
+            raise ValueError(f"{gpt_run}/config.json records no data_dir; pass --data-summary DATA/summary.json")
+        data_summary = Path(data_dir) / "summary.json"
+    training_data = training_data_entry(Path(data_summary))
+    cond_drop = float((gpt_data.get("training") or {}).get("cond_drop", 0.0))
+    unconditional = cond_drop > 0
+    guidance = default_guidance if default_guidance is not None else (3.0 if unconditional else 1.0)
+    mean, std = _normalisation(vq_run, vq_record)
+    notes = (f"## Provenance\n\n- VQ run: `{vq_run.name}` (step {vq_record.get('step')})\n"
+             f"- GPT run: `{gpt_run.name}` (step {gpt_record.get('step')}), condition dropout {cond_drop}\n")
+    if model_card:
+        notes += "\n" + Path(model_card).read_text(encoding="utf-8")
+    vq = load_model(vq_run, expect_kind="vq")
+    gpt = load_model(gpt_run, expect_kind="gpt")
+    if text_source is None:  # built last: loading a text encoder is the slow part
+        text_source = clip_text_source(clip_weights) if kind == "clip" else minilm_text_source()
+    return export_bundle(
+        out_dir, vq=vq, gpt=gpt, mean=mean, std=std, text_source=text_source,
+        name=name or f"t2m-{training_data['name']}-{kind}", version=version,
+        unconditional_branch=unconditional, default_guidance=guidance, training_data=training_data,
+        license=training_data["license"], int8=int8, notes=notes, check_parity=check_parity,
+    )

@@ -1,0 +1,107 @@
+"""Model checkpoints as docs/contracts.md fixes them.
+
+``<run_dir>/model.safetensors`` holds the module's state dict (persistent tensors only);
+``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"evaluator", "config": {...}, "step": N, "data": {...}}``
+is enough to rebuild the module: :func:`load_model` does that.
+The training resume state (optimizer, schedule, RNG, quantiser EMA statistics) lives apart in resume.pt.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+CONFIG_FILE = "config.json"
+WEIGHTS_FILE = "model.safetensors"
+KINDS = ("vq", "gpt", "evaluator")
+
+
+def model_kind(model: nn.Module) -> str:
+    from t2m.model.networks.gpt import MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE
+
+    if isinstance(model, MotionVQVAE):
+        return "vq"
+    if isinstance(model, MotionGPT):
+        return "gpt"
+    if type(model).__name__ == "MotionEvaluator":
+        return "evaluator"
+    raise ValueError(f"no checkpoint kind for {type(model).__name__}")
+
+
+def _config_dict(model: nn.Module) -> dict[str, Any]:
+    config = model.config
+    return config.to_dict() if hasattr(config, "to_dict") else dict(vars(config))
+
+
+def save_checkpoint(run_dir: str | Path, model: nn.Module, step: int, data: dict[str, Any] | None = None) -> Path:
+    """Write model.safetensors and config.json (atomically: a crash never leaves half a checkpoint)."""
+    from safetensors.torch import save_file
+
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    state = {name: tensor.detach().cpu().contiguous() for name, tensor in model.state_dict().items()}
+    tmp_weights = run_dir / (WEIGHTS_FILE + ".tmp")
+    save_file(state, str(tmp_weights), metadata={"kind": model_kind(model), "step": str(step)})
+    tmp_weights.replace(run_dir / WEIGHTS_FILE)
+    record = {"kind": model_kind(model), "config": _config_dict(model), "step": int(step), "data": data or {}}
+    tmp_config = run_dir / (CONFIG_FILE + ".tmp")
+    tmp_config.write_text(json.dumps(record, indent=2) + "\n")
+    tmp_config.replace(run_dir / CONFIG_FILE)
+    return run_dir
+
+
+def read_run_config(run_dir: str | Path) -> dict[str, Any]:
+    """config.json of a run, checked for the fields load_model needs."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise FileNotFoundError(str(path))
+    try:
+        record = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    for field in ("kind", "config"):
+        if field not in record:
+            raise ValueError(f"{path}: missing field {field!r}")
+    if record["kind"] not in KINDS:
+        raise ValueError(f"{path}: kind must be one of {', '.join(KINDS)}, got {record['kind']!r}")
+    return record
+
+
+def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
+    """An untrained module of the given kind from its config dict."""
+    if kind == "vq":
+        from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+
+        return MotionVQVAE(VQConfig.from_dict(config))
+    if kind == "gpt":
+        from t2m.model.networks.gpt import GPTConfig, MotionGPT
+
+        return MotionGPT(GPTConfig.from_dict(config))
+    if kind == "evaluator":
+        from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
+
+        return MotionEvaluator(EvaluatorConfig(**config))
+    raise ValueError(f"unknown checkpoint kind {kind!r}")
+
+
+def load_model(run_dir: str | Path, expect_kind: str | None = None) -> nn.Module:
+    """Rebuild the module described by run_dir/config.json and load model.safetensors into it (strict), eval mode."""
+    from safetensors.torch import load_file
+
+    run_dir = Path(run_dir)
+    record = read_run_config(run_dir)
+    if expect_kind is not None and record["kind"] != expect_kind:
+        raise ValueError(f"{run_dir / CONFIG_FILE}: expected a {expect_kind} checkpoint, found {record['kind']!r}")
+    weights = run_dir / WEIGHTS_FILE
+    if not weights.is_file():
+        raise FileNotFoundError(str(weights))
+    model = build_model(record["kind"], record["config"])
+    try:
+        model.load_state_dict(load_file(str(weights)), strict=True)
+    except RuntimeError as error:
+        raise ValueError(f"{weights}: weights do not match config.json ({error})") from error
+    return model.eval()

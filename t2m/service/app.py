@@ -1,0 +1,151 @@
+"""The FastAPI application factory.
+
+`create_app(settings)` wires settings, middleware (metrics, CORS, body limit), routes and error handlers. The model
+bundle loads in a background thread started by the lifespan, so /health answers 503 during the load instead of the
+port staying closed; `engine_factory` lets tests inject an engine.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any, AsyncIterator, Callable
+
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
+
+from t2m.service.batching import MicroBatcher
+from t2m.service.dependencies import ServiceState
+from t2m.service.engine.types import Engine
+from t2m.service.formats import preload as preload_formats
+from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
+from t2m.service.middleware import BodySizeLimitMiddleware
+from t2m.service.routes import generate, health, metrics
+from t2m.service.settings import Settings
+
+__all__ = ["create_app", "app_from_env", "load_onnx_engine"]
+
+log = logging.getLogger("service")
+
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+
+
+def load_onnx_engine(settings: Settings) -> Engine:
+    """The production engine: the bundle at settings.bundle_path on onnxruntime."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    return OnnxEngine.load(settings.bundle_path, check_hashes=settings.verify_hashes,
+                           intra_op_threads=settings.intra_op_threads, inter_op_threads=settings.inter_op_threads)
+
+
+def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engine]) -> None:
+    settings = state.settings
+    started = time.perf_counter()
+    try:
+        engine = factory(settings)
+        preload_formats()
+    except Exception as error:  # reported by /health; the process stays up so the cause is visible
+        log.error("model bundle %s failed to load: %s", settings.bundle_path, error)
+        state.set_error(str(error))
+        return
+    batcher = MicroBatcher(engine, max_queue=settings.max_queue, max_batch_rows=settings.max_batch_rows,
+                           window_s=settings.batch_window_ms / 1000.0, workers=settings.engine_workers)
+    limits = engine.limits
+    state.metrics.model.info({"name": limits.name, "version": limits.version})
+    state.set_ready(engine, batcher, time.perf_counter() - started)
+    log.info("model %s %s ready in %.1f s", limits.name, limits.version, state.load_seconds)
+
+
+def create_app(settings: Settings | None = None, *,
+               engine_factory: Callable[[Settings], Engine] | None = None) -> FastAPI:
+    """A new app instance with its own state and metrics registry."""
+    settings = settings or Settings()
+    factory = engine_factory or load_onnx_engine
+    state = ServiceState(settings=settings, metrics=ServiceMetrics())
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        loader = threading.Thread(target=_load_in_background, args=(state, factory), name="t2m-load", daemon=True)
+        loader.start()
+        try:
+            yield
+        finally:
+            if state.batcher is not None:
+                state.batcher.close()
+
+    app = FastAPI(title="t2m-service", version="0.1.0", lifespan=lifespan,
+                  description="Text to 3D human motion: a stream of sentences with durations becomes one continuous "
+                              "motion (22-joint SMPL skeleton, 20 fps) as JSON joints, BVH or glTF binary.")
+    app.state.service = state
+    app.include_router(generate.router)
+    app.include_router(health.router)
+    app.include_router(metrics.router)
+    _add_viewer(app)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, error: RequestValidationError) -> JSONResponse:
+        """FastAPI's 422 shape (detail = [{loc, msg, type, ...}]), made safe for inputs like NaN."""
+        return JSONResponse({"detail": _json_safe(jsonable_encoder(error.errors()))}, status_code=422)
+
+    @app.exception_handler(Exception)
+    async def internal_error(request: Request, error: Exception) -> JSONResponse:
+        """Never a traceback to the client; the log has it."""
+        log.error("internal error on %s %s", request.method, request.url.path, exc_info=error)
+        return JSONResponse({"detail": "internal server error"}, status_code=500)
+
+    # added last = outermost: metrics see every answer, including 413 and CORS pre-flights
+    app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
+    if settings.cors_origins:
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["GET", "POST"],
+                           allow_headers=["Authorization", "Content-Type"],
+                           expose_headers=["X-Seed", "X-T2M-Warnings", "Content-Disposition", "Retry-After"])
+    known = _route_paths(app)
+    app.add_middleware(MetricsMiddleware, metrics=state.metrics, known_paths=lambda: known)
+    return app
+
+
+def _json_safe(value: Any) -> Any:
+    """Non-finite floats (which JSON cannot carry) as strings; everything else unchanged."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(item) for item in value]
+    return value
+
+
+def _route_paths(app: FastAPI) -> set[str]:
+    """The path templates the app serves (metric labels); included routers are looked into."""
+    paths: set[str] = set()
+    for route in app.routes:
+        if getattr(route, "path", None):
+            paths.add(route.path)
+        included = getattr(route, "original_router", None)
+        paths.update(getattr(sub, "path", "") for sub in getattr(included, "routes", []))
+    return paths - {""}
+
+
+def _add_viewer(app: FastAPI) -> None:
+    """The browser viewer at / (service/static), when it is installed."""
+    index = STATIC_DIR / "index.html"
+    if not index.is_file():
+        return
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+    @app.get("/", include_in_schema=False)
+    def viewer() -> FileResponse:
+        return FileResponse(index)
+
+
+def app_from_env() -> FastAPI:
+    """For `uvicorn --factory t2m.service.app:app_from_env` (several workers): settings from T2M_* variables."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return create_app(Settings())

@@ -1,0 +1,109 @@
+"""Load a model bundle for the service: the contract's checks (t2m.bundle), then the onnxruntime sessions.
+
+A bundle is all the service knows about a model, so everything the sampler relies on is checked here, once, at
+start-up: the manifest's fields, each listed file's size and sha256 (t2m.bundle), and each graph's declared inputs
+and outputs as onnxruntime sees them against the contract's signatures (t2m.bundle.expected_graphs), then the
+families this service can run.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from t2m.bundle import (BundleError, DeclaredTensor, Manifest, check_files, check_graph_io, expected_graphs,
+                        read_manifest)
+
+__all__ = ["BundleError", "Manifest", "Bundle", "load_bundle", "session_options"]
+
+log = logging.getLogger(__name__)
+
+# onnxruntime's type strings -> the contract's dtype names
+_ORT_DTYPES = {"tensor(float)": "float32", "tensor(int64)": "int64", "tensor(int32)": "int32",
+               "tensor(float16)": "float16", "tensor(bool)": "bool"}
+
+
+def _check_family(manifest: Manifest) -> None:
+    """The decoding loops this service has: the GPT over one layer of codes."""
+    if manifest.family != "gpt":
+        raise BundleError(f"manifest.json: field 'family' is {manifest.family!r}; this service runs 'gpt' bundles")
+    if manifest.residual_layers != 1:
+        raise BundleError(f"manifest.json: field 'residual_layers' is {manifest.residual_layers}; this service "
+                          "samples one code per step and serves single-layer bundles only")
+
+
+def session_options(intra_op_threads: int = 0, inter_op_threads: int = 1) -> ort.SessionOptions:
+    """Options shared by the three sessions: full graph optimisation, sequential execution, the thread budget."""
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.intra_op_num_threads = intra_op_threads
+    options.inter_op_num_threads = inter_op_threads
+    options.log_severity_level = 3
+    return options
+
+
+def _open_session(file: Path, options: ort.SessionOptions) -> ort.InferenceSession:
+    try:
+        return ort.InferenceSession(str(file), sess_options=options, providers=["CPUExecutionProvider"])
+    except Exception as error:  # onnxruntime raises its own exception types for a broken graph
+        raise BundleError(f"{file}: onnxruntime cannot load the graph ({str(error).splitlines()[0]})") from None
+
+
+def _check_session(session: ort.InferenceSession, file: str, manifest: Manifest) -> None:
+    """The graph's declared inputs/outputs, as onnxruntime reads them, against the contract's signature."""
+    def declared(args: list) -> list[DeclaredTensor]:
+        return [DeclaredTensor(arg.name, _ORT_DTYPES.get(arg.type, arg.type), tuple(arg.shape)) for arg in args]
+
+    check_graph_io(file, declared(session.get_inputs()), declared(session.get_outputs()),
+                   expected_graphs(manifest.raw)[file])
+
+
+@dataclass
+class Bundle:
+    """A verified bundle: its manifest, the three onnxruntime sessions and the tokenizer file."""
+
+    path: Path
+    manifest: Manifest
+    text_session: ort.InferenceSession
+    gpt_session: ort.InferenceSession
+    decoder_session: ort.InferenceSession
+    gpt_has_length_input: bool
+    mean: np.ndarray
+    std: np.ndarray
+
+    @property
+    def tokenizer_file(self) -> Path:
+        return self.path / "tokenizer.json"
+
+
+def _load_array(path: Path, manifest: Manifest) -> np.ndarray:
+    try:
+        array = np.load(path, allow_pickle=False)
+    except ValueError as error:
+        raise BundleError(f"{path}: not a numpy array file ({error})") from None
+    if array.shape != (manifest.feature_dim,):
+        raise BundleError(f"{path}: shape {array.shape}, expected ({manifest.feature_dim},)")
+    return array
+
+
+def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
+                inter_op_threads: int = 1) -> Bundle:
+    """Verify the bundle at `path` and open its graphs; raises BundleError naming the first problem found."""
+    path = Path(path)
+    manifest = read_manifest(path)
+    check_files(path, manifest.files, check_hashes=check_hashes)
+    _check_family(manifest)
+    options = session_options(intra_op_threads, inter_op_threads)
+    sessions = {}
+    for file in ("text_encoder.onnx", "gpt_step.onnx", "decoder.onnx"):
+        sessions[file] = _open_session(path / file, options)
+        _check_session(sessions[file], file, manifest)
+    log.info("loaded bundle %s %s from %s", manifest.name, manifest.version, path)
+    return Bundle(path=path, manifest=manifest, text_session=sessions["text_encoder.onnx"],
+                  gpt_session=sessions["gpt_step.onnx"], decoder_session=sessions["decoder.onnx"],
+                  gpt_has_length_input=manifest.length_conditioning, mean=_load_array(path / "mean.npy", manifest),
+                  std=_load_array(path / "std.npy", manifest))

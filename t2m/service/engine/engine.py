@@ -1,0 +1,130 @@
+"""OnnxEngine: a verified bundle turned into `generate(request) -> Motion` (the recipe of docs/contracts.md).
+
+Per request: its texts through the text graph as one batch; its segments' codes sampled in lockstep with every other
+request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
+motion.features. Nothing here knows about HTTP.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from t2m.motion.features import features_to_joints
+from t2m.motion.skeleton import get_skeleton
+from t2m.service.engine.bundle import Bundle, load_bundle
+from t2m.service.engine.decoder import Decoder
+from t2m.service.engine.sampler import GptStep, SamplingJob, sample_codes
+from t2m.service.engine.text import TextEncoder, load_tokenizer
+from t2m.service.engine.types import (GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError,
+                                  SegmentSpan, tokens_for_duration)
+
+__all__ = ["OnnxEngine"]
+
+log = logging.getLogger(__name__)
+
+
+class OnnxEngine:
+    """Generates motions from a bundle with onnxruntime; thread-safe (sessions are, and no state is kept per call)."""
+
+    def __init__(self, bundle: Bundle) -> None:
+        manifest = bundle.manifest
+        self.bundle = bundle
+        self.skeleton = get_skeleton(manifest.skeleton)
+        if len(self.skeleton.joint_names) != manifest.num_joints:
+            from t2m.bundle import BundleError
+            raise BundleError(f"manifest.json: field 'num_joints' is {manifest.num_joints} but skeleton "
+                              f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
+        self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
+        self.step = GptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
+                            bundle.gpt_has_length_input)
+        self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
+        raw = manifest.raw
+        self.limits = ModelLimits(
+            name=manifest.name, version=manifest.version, fps=manifest.fps,
+            frames_per_token=manifest.frames_per_token, max_tokens=manifest.max_tokens,
+            codebook_size=manifest.codebook_size, default_guidance=manifest.default_guidance,
+            unconditional_branch=manifest.unconditional_branch, length_conditioning=manifest.length_conditioning,
+            skeleton=manifest.skeleton, joint_names=tuple(self.skeleton.joint_names),
+            parents=tuple(int(p) for p in self.skeleton.parents),
+            details={key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
+                     if key in raw})
+
+    @classmethod
+    def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
+             inter_op_threads: int = 1) -> "OnnxEngine":
+        return cls(load_bundle(path, check_hashes=check_hashes, intra_op_threads=intra_op_threads,
+                               inter_op_threads=inter_op_threads))
+
+    def generate(self, request: GenerationRequest) -> Motion:
+        """One request on its own; raises what the batch would have returned in its place."""
+        (result,) = self.generate_batch([request])
+        if isinstance(result, BaseException):
+            raise result
+        return result
+
+    def generate_batch(self, requests: Sequence[GenerationRequest],
+                       on_step: Callable[[int], None] | None = None) -> list[Motion | BaseException]:
+        """Generate all requests with their GPT steps batched together; a request's failure lands in its slot."""
+        results: list[Motion | BaseException | None] = [None] * len(requests)
+        jobs: list[SamplingJob] = []
+        owners: list[int] = []
+        for index, request in enumerate(requests):
+            if request.cancelled:
+                results[index] = GenerationCancelled("request cancelled before it started")
+                continue
+            try:
+                jobs.append(self._job(request))
+                owners.append(index)
+            except Exception as error:  # one bad request must not sink the batch
+                log.exception("text encoding failed")
+                results[index] = error
+        if jobs:
+            codes = sample_codes(self.step, jobs, self.limits.max_tokens, self.bundle.manifest.end_id, on_step)
+            for index, segment_codes in zip(owners, codes):
+                request = requests[index]
+                if segment_codes is None:
+                    results[index] = GenerationCancelled("request cancelled during generation")
+                    continue
+                try:
+                    results[index] = self._motion(request, segment_codes)
+                except Exception as error:
+                    log.exception("decoding failed")
+                    results[index] = error
+        return results  # type: ignore[return-value]
+
+    def _job(self, request: GenerationRequest) -> SamplingJob:
+        limits = self.limits
+        targets = [None if s.duration is None else tokens_for_duration(s.duration, limits.fps,
+                                                                       limits.frames_per_token)
+                   for s in request.segments]
+        for index, target in enumerate(targets):
+            if target is not None and target > limits.max_tokens:
+                raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
+                                 f"{limits.max_tokens}")
+        if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
+            raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+        conds = self.text.encode([s.text for s in request.segments])
+        return SamplingJob(conds=conds, targets=targets, guidance=request.guidance,
+                           temperature=request.temperature, top_k=request.top_k,
+                           rng=np.random.default_rng(request.seed), cancelled=lambda: request.cancelled)
+
+    def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray]) -> Motion:
+        per_token = self.limits.frames_per_token
+        spans, start = [], 0
+        for segment, codes in zip(request.segments, segment_codes):
+            spans.append(SegmentSpan(text=segment.text, start_frame=start, end_frame=start + len(codes) * per_token))
+            start += len(codes) * per_token
+        features = self.decoder.decode(np.concatenate(segment_codes))
+        if len(features) != start:
+            raise RuntimeError(f"decoder.onnx returned {len(features)} frames for {start // per_token} tokens, "
+                               f"expected {start} (frames_per_token {per_token})")
+        joints = np.asarray(features_to_joints(features, self.skeleton), dtype=np.float32)
+        warnings = []
+        if request.guidance != 1.0 and not self.limits.unconditional_branch:
+            warnings.append(f"guidance {request.guidance:g} requested but model {self.limits.name!r} was trained "
+                            "without an unconditional branch; the null-condition logits are untrained")
+        return Motion(joints=joints, fps=self.limits.fps, segments=spans, seed=request.seed,
+                      tokens=start // per_token, warnings=warnings)

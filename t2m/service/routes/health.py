@@ -1,0 +1,30 @@
+"""GET /health: 200 with the model's facts once loaded, 503 while loading or after a failed load."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+from fastapi.responses import JSONResponse
+
+from t2m.service.dependencies import ServiceState, get_state
+from t2m.service.schemas import HealthResponse, ModelDetails
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["operations"])
+
+
+@router.get("/health", response_model=HealthResponse,
+            responses={503: {"model": HealthResponse, "description": "Loading, or the load failed (see detail)."}})
+def health(state: ServiceState = Depends(get_state)) -> JSONResponse:
+    """Readiness for load balancers and container health checks."""
+    if state.status != "ok" or state.engine is None:
+        answer = HealthResponse(status=state.status, detail=state.error if state.status == "error"
+                                else "loading the model bundle")
+        return JSONResponse(answer.model_dump(), status_code=503,
+                            headers={"Retry-After": str(state.settings.retry_after_s)})
+    limits = state.engine.limits
+    model = ModelDetails(name=limits.name, version=limits.version, fps=limits.fps, max_tokens=limits.max_tokens,
+                         codebook_size=limits.codebook_size, default_guidance=limits.default_guidance,
+                         unconditional_branch=limits.unconditional_branch,
+                         length_conditioning=limits.length_conditioning,
+                         extra={**limits.details, "load_seconds": state.load_seconds})
+    return JSONResponse(HealthResponse(status="ok", model=model).model_dump())

@@ -1,0 +1,171 @@
+"""The HTTP API, defined once as pydantic models: FastAPI validates requests with them and publishes them as OpenAPI.
+
+Limits that do not depend on the model are declared on the fields (so they show up in the schema); the two that do
+(`top_k` <= the codebook size, free-length segments counted at the model's longest segment) are checked by
+`model_limit_errors`, which reports them in the same shape as pydantic's errors (a `loc` naming the field).
+"""
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstraints, field_validator
+
+from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
+
+__all__ = [
+    "MAX_SEGMENTS", "MAX_TEXT_CHARS", "MIN_DURATION_S", "MAX_DURATION_S", "MAX_TOTAL_S", "MAX_GUIDANCE",
+    "MAX_TEMPERATURE", "MAX_SEED", "OutputFormat", "Segment", "GenerateRequest", "SegmentSpanOut", "ModelInfo",
+    "MotionResponse", "ModelDetails", "HealthResponse", "ErrorResponse", "model_limit_errors", "to_generation_request",
+]
+
+MAX_SEGMENTS = 32
+MAX_TEXT_CHARS = 300
+MIN_DURATION_S = 0.5
+MAX_DURATION_S = 10.0
+MAX_TOTAL_S = 120.0
+MAX_GUIDANCE = 10.0
+MAX_TEMPERATURE = 5.0
+MAX_SEED = 2**53 - 1   # the largest integer every JSON reader (JavaScript included) holds exactly
+
+OutputFormat = Literal["json", "bvh", "glb"]
+
+
+def _json_integer(value: Any) -> Any:
+    """JSON Schema counts 3.0 as an integer; pass it on as 3 (1.5, true and "3" still fail the strict int check)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+Seed = Annotated[int, Field(ge=0, le=MAX_SEED), BeforeValidator(_json_integer)]
+TopK = Annotated[int, Field(ge=1), BeforeValidator(_json_integer)]
+
+
+class _Strict(BaseModel):
+    """Unknown fields refused, and no type coercion ("3" or true for a number), exactly as the JSON schema says."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+class Segment(_Strict):
+    """One sentence and how long its motion lasts."""
+
+    text: Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS, pattern=r"\S")] = Field(
+        description=f"What the person does; 1-{MAX_TEXT_CHARS} characters after trimming, not only white space.",
+        examples=["a person walks forward"])
+    duration: float | None = Field(
+        None, ge=MIN_DURATION_S, le=MAX_DURATION_S,
+        description=f"Seconds ({MIN_DURATION_S}-{MAX_DURATION_S}); null lets the model end the segment itself. "
+                    "Frames = round(duration * 20 / 4) * 4.", examples=[3.0])
+
+
+class GenerateRequest(_Strict):
+    """POST /generate: a stream of sentences that becomes one continuous motion."""
+
+    segments: list[Segment] = Field(
+        min_length=1, max_length=MAX_SEGMENTS,
+        description=f"1-{MAX_SEGMENTS} segments; total at most {MAX_TOTAL_S:g} s, a null duration counting as the "
+                    "model's longest segment (max_tokens * 4 / 20 s, 10 s for the default model).")
+    format: OutputFormat = Field("json", description="json (joints), bvh (text) or glb (glTF binary).")
+    seed: Seed | None = Field(None,
+                             description="Same seed + same request = same motion; null picks one and returns it.")
+    guidance: float | None = Field(
+        None, ge=0.0, le=MAX_GUIDANCE,
+        description="Classifier-free guidance scale (1 = off); null = the model's default.")
+    temperature: float = Field(1.0, gt=0.0, le=MAX_TEMPERATURE, description="Sampling temperature.")
+    top_k: TopK | None = Field(None, description="Sample among the k most likely codes (<= codebook size).")
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [{
+        "segments": [{"text": "a person walks forward", "duration": 3.0},
+                     {"text": "a person waves with the right hand", "duration": 2.0}],
+        "format": "json", "seed": 123, "guidance": 3.0, "temperature": 1.0, "top_k": None}]})
+
+    @field_validator("segments")
+    @classmethod
+    def _total_duration(cls, segments: list[Segment]) -> list[Segment]:
+        """The fixed durations alone must fit; free segments are added by `model_limit_errors`."""
+        total = sum(segment.duration or 0.0 for segment in segments)
+        if total > MAX_TOTAL_S:
+            raise ValueError(f"total duration {total:g} s exceeds {MAX_TOTAL_S:g} s")
+        return segments
+
+
+class SegmentSpanOut(BaseModel):
+    text: str
+    start_frame: int = Field(description="First frame of the segment.")
+    end_frame: int = Field(description="One past the last frame (exclusive), = the next segment's start_frame.")
+
+
+class ModelInfo(BaseModel):
+    name: str
+    version: str
+
+
+class MotionResponse(BaseModel):
+    """The json answer: joint positions in metres, Y up, first frame facing +Z."""
+
+    fps: int
+    joints: list[str] = Field(description="The 22 SMPL joint names, in the order of frames' second axis.")
+    parents: list[int] = Field(description="Parent index of each joint (-1 for the root).")
+    frames: list[list[list[float]]] = Field(description="[T][22][3] positions in metres.")
+    segments: list[SegmentSpanOut]
+    seed: int
+    model: ModelInfo
+    warnings: list[str] = Field(default_factory=list)
+
+
+class ModelDetails(ModelInfo):
+    fps: int
+    max_tokens: int
+    codebook_size: int
+    default_guidance: float
+    unconditional_branch: bool
+    length_conditioning: bool
+    extra: dict[str, Any] = Field(default_factory=dict)
+
+
+class HealthResponse(BaseModel):
+    status: Literal["ok", "loading", "error"]
+    model: ModelDetails | None = None
+    detail: str | None = None
+
+
+class ErrorResponse(BaseModel):
+    detail: str
+
+
+def _error(loc: tuple[Any, ...], message: str, value: Any) -> dict[str, Any]:
+    """An error in pydantic's shape so that FastAPI's 422 handler and our callers treat it the same way."""
+    return {"type": "value_error", "loc": loc, "msg": message, "input": value}
+
+
+def model_limit_errors(request: GenerateRequest, limits: ModelLimits) -> list[dict[str, Any]]:
+    """The request's violations of the loaded model's limits, each with the `loc` of the offending field."""
+    errors: list[dict[str, Any]] = []
+    if request.top_k is not None and request.top_k > limits.codebook_size:
+        errors.append(_error(("body", "top_k"), f"top_k must be at most the codebook size {limits.codebook_size}",
+                             request.top_k))
+    for index, segment in enumerate(request.segments):
+        if segment.duration is None:
+            continue
+        tokens = tokens_for_duration(segment.duration, limits.fps, limits.frames_per_token)
+        if tokens > limits.max_tokens:
+            errors.append(_error(
+                ("body", "segments", index, "duration"),
+                f"duration {segment.duration:g} s needs {tokens} tokens; this model makes at most "
+                f"{limits.max_tokens} per segment ({limits.max_segment_seconds:g} s)", segment.duration))
+    total = sum(s.duration if s.duration is not None else limits.max_segment_seconds for s in request.segments)
+    if total > MAX_TOTAL_S + 1e-9:
+        errors.append(_error(
+            ("body", "segments"),
+            f"total duration {total:g} s exceeds {MAX_TOTAL_S:g} s (a null duration counts as "
+            f"{limits.max_segment_seconds:g} s, the model's longest segment)", None))
+    return errors
+
+
+def to_generation_request(request: GenerateRequest, limits: ModelLimits, seed: int) -> GenerationRequest:
+    """Resolve the request's defaults against the model: the engine gets every choice made."""
+    guidance = limits.guidance(request.guidance)
+    return GenerationRequest(
+        segments=[SegmentRequest(text=s.text, duration=s.duration) for s in request.segments],
+        seed=seed, guidance=float(guidance), temperature=float(request.temperature), top_k=request.top_k)

@@ -1,0 +1,62 @@
+"""Service configuration from the environment (prefix T2M_), one typed object passed to `create_app`.
+
+Every knob an operator may need in production lives here so that the container, the CLI and the tests configure
+the service the same way: `T2M_MAX_QUEUE=4 t2m serve` and `create_app(Settings(max_queue=4))` are equivalent.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import AliasChoices, Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+from typing_extensions import Annotated
+
+from t2m.bundles import DEFAULT_BUNDLE
+
+__all__ = ["Settings", "default_bundle_path"]
+
+
+def default_bundle_path() -> Path:
+    """The embedded default model, shipped inside the package (t2m/bundles/default), wherever it is installed."""
+    return DEFAULT_BUNDLE
+
+
+class Settings(BaseSettings):
+    """All settings; each field can be set by the environment variable T2M_<FIELD NAME IN CAPITALS>."""
+
+    model_config = SettingsConfigDict(env_prefix="T2M_", extra="ignore", populate_by_name=True)
+
+    bundle_path: Path = Field(
+        default_factory=default_bundle_path,
+        validation_alias=AliasChoices("bundle_path", "T2M_BUNDLE_PATH", "T2M_MODEL_DIR"),
+        description="Model bundle directory (env T2M_BUNDLE_PATH or T2M_MODEL_DIR); default: the embedded t2m/bundles/default.",
+    )
+    intra_op_threads: int = Field(0, ge=0, description="onnxruntime intra-op threads per session (0 = ORT's choice).")
+    inter_op_threads: int = Field(1, ge=0, description="onnxruntime inter-op threads per session.")
+    engine_workers: int = Field(1, ge=1, le=16, description="Worker threads that run batches of generations.")
+    max_queue: int = Field(16, ge=1, description="Requests allowed to wait for a worker; one more gets 429.")
+    max_batch_rows: int = Field(64, ge=1, description="GPT rows (segments x cond/uncond) merged into one batch.")
+    batch_window_ms: float = Field(5.0, ge=0, description="How long a batch waits for more requests to join it.")
+    request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")
+    max_body_bytes: int = Field(64 * 1024, ge=1024, description="Larger request bodies answer 413.")
+    api_key: SecretStr | None = Field(None, description="If set, POST /generate needs 'Authorization: Bearer <key>'.")
+    cors_origins: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="Allowed CORS origins, comma-separated in the env ('*' = any).")
+    retry_after_s: int = Field(1, ge=1, description="Retry-After seconds sent with 429 and 503 answers.")
+    verify_hashes: bool = Field(True, description="Check every bundle file's sha256 at load (slower start).")
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, value: object) -> object:
+        """Accept 'https://a.example, https://b.example' from the environment as well as a list."""
+        if isinstance(value, str):
+            return [origin.strip() for origin in value.split(",") if origin.strip()]
+        return value
+
+    @field_validator("api_key", mode="after")
+    @classmethod
+    def _empty_key_is_none(cls, value: SecretStr | None) -> SecretStr | None:
+        """T2M_API_KEY= (empty) means no key rather than the empty key."""
+        if value is not None and not value.get_secret_value():
+            return None
+        return value

@@ -1,0 +1,43 @@
+"""Record the default model's outputs for fixed seeds: tests/data/default_model_outputs.npz.
+
+Recorded before the 0.4.0 restructuring (package moved under t2m/, one bundle contract, sampler split) and checked
+after it by tests/service/test_fixed_seed_outputs.py. Re-record only when the default model itself changes:
+
+    python tests/data/record_default_outputs.py t2m/bundles/default tests/data/default_model_outputs.npz
+"""
+from __future__ import annotations
+
+import hashlib
+import sys
+
+import numpy as np
+
+from t2m.service.engine.engine import OnnxEngine
+from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+CASES = {
+    "walk_3s_g3": GenerationRequest([SegmentRequest("a person walks forward", 3.0)], seed=123, guidance=3.0),
+    "stream_g3": GenerationRequest([SegmentRequest("a person walks forward", 3.0),
+                                    SegmentRequest("a person waves with the right hand", 2.0),
+                                    SegmentRequest("a person bows", 2.0)], seed=7, guidance=3.0),
+    "free_g1_topk": GenerationRequest([SegmentRequest("someone runs", None)], seed=5, guidance=1.0, top_k=20,
+                                      temperature=0.8),
+}
+
+
+def record(engine: OnnxEngine) -> dict[str, np.ndarray]:
+    """Joints and segment spans of every case."""
+    arrays = {}
+    for name, request in CASES.items():
+        motion = engine.generate(request)
+        arrays[name] = motion.joints
+        arrays[name + "_spans"] = np.asarray([[s.start_frame, s.end_frame] for s in motion.segments], np.int64)
+    return arrays
+
+
+if __name__ == "__main__":
+    bundle, out = sys.argv[1], sys.argv[2]
+    arrays = record(OnnxEngine.load(bundle, intra_op_threads=1))
+    for key, array in arrays.items():
+        print(key, array.shape, hashlib.sha256(array.tobytes()).hexdigest()[:16])
+    np.savez_compressed(out, **arrays)
