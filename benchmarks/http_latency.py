@@ -19,9 +19,9 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.server_process import require_loopback, running_server  # noqa: E402
+from benchmarks.server_process import require_loopback, running_server
 
-__all__ = ["measure_latency", "format_table", "main"]
+__all__ = ["format_table", "main", "measure_latency"]
 
 FORMATS = ("json", "bvh", "glb")
 MAX_REPEATS = 200

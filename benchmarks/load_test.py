@@ -29,9 +29,9 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.server_process import require_loopback, running_server  # noqa: E402
+from benchmarks.server_process import require_loopback, running_server
 
-__all__ = ["PhaseResult", "MemoryTrace", "LoadReport", "run_phase", "run_load", "rss_bytes", "format_report", "main"]
+__all__ = ["LoadReport", "MemoryTrace", "PhaseResult", "format_report", "main", "rss_bytes", "run_load", "run_phase"]
 
 MAX_CLIENTS = 512
 MAX_SECONDS = 600.0

@@ -16,22 +16,34 @@ import json
 import logging
 import sys
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the repo's packages importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from t2m.model.evaluation.probes import PROBES, STREAM, ProbeSpec, join_smoothness, probe_by_name  # noqa: E402
-from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest  # noqa: E402
+from t2m.model.evaluation.probes import PROBES, STREAM, ProbeSpec, join_smoothness, probe_by_name
+from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
 
 if TYPE_CHECKING:
     from t2m.service.engine.engine import OnnxEngine
 
-__all__ = ["Trial", "ProbeSummary", "StreamSummary", "ProbeReport", "run_probes", "run_stream", "generate",
-           "format_report", "calibrate_on_clips", "format_calibration", "main"]
+__all__ = [
+    "ProbeReport",
+    "ProbeSummary",
+    "StreamSummary",
+    "Trial",
+    "calibrate_on_clips",
+    "format_calibration",
+    "format_report",
+    "generate",
+    "main",
+    "run_probes",
+    "run_stream",
+]
 
 log = logging.getLogger("benchmarks.probes")
 
@@ -105,7 +117,7 @@ class ProbeReport:
         return data
 
 
-def generate(engine: "OnnxEngine", requests: Sequence[GenerationRequest]) -> list[Motion]:
+def generate(engine: OnnxEngine, requests: Sequence[GenerationRequest]) -> list[Motion]:
     """All requests through the engine, BATCH at a time; any failed request is raised."""
     motions: list[Motion] = []
     for start in range(0, len(requests), BATCH):
@@ -120,7 +132,7 @@ def _request(text: str, duration: float, seed: int, guidance: float) -> Generati
     return GenerationRequest(segments=[SegmentRequest(text, duration)], seed=seed, guidance=guidance)
 
 
-def run_probe(engine: "OnnxEngine", spec: ProbeSpec, seeds: Sequence[int], guidance: float,
+def run_probe(engine: OnnxEngine, spec: ProbeSpec, seeds: Sequence[int], guidance: float,
               duration: float = 3.0) -> ProbeSummary:
     """One probe: every phrasing with every seed (plus, for a paired probe, its reference with the same seed)."""
     if not seeds:
@@ -141,7 +153,7 @@ def run_probe(engine: "OnnxEngine", spec: ProbeSpec, seeds: Sequence[int], guida
     return ProbeSummary(spec.name, result.rule, result.unit, trials)
 
 
-def run_stream(engine: "OnnxEngine", seeds: Sequence[int], guidance: float,
+def run_stream(engine: OnnxEngine, seeds: Sequence[int], guidance: float,
                sentences: Sequence[tuple[str, float, str]] = STREAM) -> StreamSummary:
     """The multi-sentence stream per seed: each segment's own probe, and the velocity jump at each join."""
     requests = [GenerationRequest(segments=[SegmentRequest(text, seconds) for text, seconds, _ in sentences],
@@ -162,7 +174,7 @@ def run_stream(engine: "OnnxEngine", seeds: Sequence[int], guidance: float,
                          ratios, p95_ratios, changes, medians, p95s)
 
 
-def run_probes(engine: "OnnxEngine", seeds: Sequence[int], guidance: float, duration: float = 3.0,
+def run_probes(engine: OnnxEngine, seeds: Sequence[int], guidance: float, duration: float = 3.0,
                probes: Iterable[ProbeSpec] = PROBES, stream: bool = True, bundle: str = "",
                progress: bool = True) -> ProbeReport:
     """Every probe (and the stream) on this engine; a report with every trial."""
@@ -238,8 +250,8 @@ def calibrate_on_clips(dataset_dir: str | Path, per_content: int = 20, seconds: 
 
     from tqdm import tqdm
 
-    from t2m.motion.bvh import read_bvh
     from t2m.model.evaluation.probes import probe_run_vs_walk
+    from t2m.motion.bvh import read_bvh
     from t2m.motion.retarget import bvh_to_smpl22
 
     root = Path(dataset_dir)

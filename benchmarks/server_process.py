@@ -13,14 +13,14 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 from urllib.error import HTTPError, URLError
 from urllib.parse import urlsplit
 from urllib.request import urlopen
 
-__all__ = ["LiveServer", "free_port", "running_server", "wait_until_healthy", "require_loopback"]
+__all__ = ["LiveServer", "free_port", "require_loopback", "running_server", "wait_until_healthy"]
 
 REPO = Path(__file__).resolve().parent.parent
 

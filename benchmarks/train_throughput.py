@@ -14,7 +14,7 @@ import time
 import torch
 
 
-def time_steps(step, steps: int, warmup: int = 2) -> tuple[float, float]:  # noqa: ANN001
+def time_steps(step, steps: int, warmup: int = 2) -> tuple[float, float]:
     """(wall seconds, CPU seconds of this process) per step. On a shared machine the CPU time tells what the
     step costs; wall time tells what this run got."""
     for _ in range(warmup):
@@ -26,8 +26,8 @@ def time_steps(step, steps: int, warmup: int = 2) -> tuple[float, float]:  # noq
 
 
 def bench_vq(width: int, batch: int, window: int, steps: int) -> tuple[float, float, int]:
-    from t2m.model.training.train_vq import vq_loss
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.train_vq import vq_loss
 
     model = MotionVQVAE(VQConfig(width=width, code_dim=width, nb_code=512)).train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=2e-4)

@@ -14,18 +14,18 @@ import argparse
 import io
 import logging
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the repo's packages importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from t2m.model.evaluation.probes import STREAM, initial_facing, path_length, probe_by_name  # noqa: E402
-from t2m.motion.skeleton import SMPL22  # noqa: E402
+from t2m.model.evaluation.probes import STREAM, initial_facing, path_length, probe_by_name
+from t2m.motion.skeleton import SMPL22
 
-__all__ = ["SheetRow", "Camera", "contact_sheet", "stream_gif", "SINGLE_MOTIONS", "main"]
+__all__ = ["SINGLE_MOTIONS", "Camera", "SheetRow", "contact_sheet", "main", "stream_gif"]
 
 log = logging.getLogger("scripts.render_motions")
 

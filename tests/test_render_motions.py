@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from scripts.render_motions import Camera, SheetRow, _pick_frames, contact_sheet, stream_gif
 from t2m.motion.bvh import read_bvh
 from t2m.motion.retarget import bvh_to_smpl22
 from t2m.motion.skeleton import SMPL22
-from scripts.render_motions import Camera, SheetRow, _pick_frames, contact_sheet, stream_gif
 
 
 @pytest.fixture(scope="module")

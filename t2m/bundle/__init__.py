@@ -8,9 +8,37 @@ from __future__ import annotations
 from t2m.bundle.errors import BundleError
 from t2m.bundle.files import check_files, files_table, sha256_of
 from t2m.bundle.graphs import DeclaredTensor, GraphSpec, TensorSpec, check_graph_io, expected_graphs
-from t2m.bundle.manifest import (FAMILIES, FORMAT_VERSION, MANIFEST_NAME, OPTIONAL_FILES, REQUIRED_FILES, Manifest,
-                                 check_manifest_fields, parse_manifest, read_manifest, read_manifest_dict)
+from t2m.bundle.manifest import (
+                                 FAMILIES,
+                                 FORMAT_VERSION,
+                                 MANIFEST_NAME,
+                                 OPTIONAL_FILES,
+                                 REQUIRED_FILES,
+                                 Manifest,
+                                 check_manifest_fields,
+                                 parse_manifest,
+                                 read_manifest,
+                                 read_manifest_dict,
+)
 
-__all__ = ["BundleError", "check_files", "files_table", "sha256_of", "DeclaredTensor", "GraphSpec", "TensorSpec", "check_graph_io",
-           "expected_graphs", "FAMILIES", "FORMAT_VERSION", "MANIFEST_NAME", "OPTIONAL_FILES", "REQUIRED_FILES",
-           "Manifest", "check_manifest_fields", "parse_manifest", "read_manifest", "read_manifest_dict"]
+__all__ = [
+                                 "FAMILIES",
+                                 "FORMAT_VERSION",
+                                 "MANIFEST_NAME",
+                                 "OPTIONAL_FILES",
+                                 "REQUIRED_FILES",
+                                 "BundleError",
+                                 "DeclaredTensor",
+                                 "GraphSpec",
+                                 "Manifest",
+                                 "TensorSpec",
+                                 "check_files",
+                                 "check_graph_io",
+                                 "check_manifest_fields",
+                                 "expected_graphs",
+                                 "files_table",
+                                 "parse_manifest",
+                                 "read_manifest",
+                                 "read_manifest_dict",
+                                 "sha256_of",
+]

@@ -9,7 +9,7 @@ from typing import Any
 from t2m.bundle.errors import BundleError
 from t2m.bundle.manifest import MANIFEST_NAME, REQUIRED_FILES
 
-__all__ = ["sha256_of", "files_table", "check_files"]
+__all__ = ["check_files", "files_table", "sha256_of"]
 
 
 def sha256_of(path: Path, chunk: int = 1 << 20) -> str:

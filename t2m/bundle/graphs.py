@@ -11,7 +11,7 @@ from typing import Any
 
 from t2m.bundle.errors import BundleError
 
-__all__ = ["TensorSpec", "GraphSpec", "DeclaredTensor", "expected_graphs", "check_graph_io"]
+__all__ = ["DeclaredTensor", "GraphSpec", "TensorSpec", "check_graph_io", "expected_graphs"]
 
 INT64 = "int64"
 FLOAT32 = "float32"

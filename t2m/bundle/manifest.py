@@ -15,9 +15,20 @@ from typing import Any
 
 from t2m.bundle.errors import BundleError
 
-__all__ = ["FORMAT_VERSION", "MANIFEST_NAME", "REQUIRED_FILES", "OPTIONAL_FILES", "FAMILIES", "MANIFEST_FIELDS",
-           "CaptionIndexInfo", "Manifest", "check_manifest_fields", "parse_manifest", "read_manifest_dict",
-           "read_manifest"]
+__all__ = [
+    "FAMILIES",
+    "FORMAT_VERSION",
+    "MANIFEST_FIELDS",
+    "MANIFEST_NAME",
+    "OPTIONAL_FILES",
+    "REQUIRED_FILES",
+    "CaptionIndexInfo",
+    "Manifest",
+    "check_manifest_fields",
+    "parse_manifest",
+    "read_manifest",
+    "read_manifest_dict",
+]
 
 FORMAT_VERSION = 1
 MANIFEST_NAME = "manifest.json"

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from typing import Sequence
+from collections.abc import Sequence
 
 # Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
 # `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code. Only the module of the

@@ -3,5 +3,19 @@ from t2m.client.client import AsyncT2MClient, T2MClient
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
 from t2m.client.models import Health, ModelInfo, Motion, RawResult, Segment, SegmentSpan
 
-__all__ = ["T2MClient", "AsyncT2MClient", "Segment", "SegmentSpan", "Motion", "ModelInfo", "Health", "RawResult",
-           "T2MError", "ValidationError", "AuthError", "OverloadedError", "ServerError", "T2MConnectionError"]
+__all__ = [
+           "AsyncT2MClient",
+           "AuthError",
+           "Health",
+           "ModelInfo",
+           "Motion",
+           "OverloadedError",
+           "RawResult",
+           "Segment",
+           "SegmentSpan",
+           "ServerError",
+           "T2MClient",
+           "T2MConnectionError",
+           "T2MError",
+           "ValidationError",
+]

@@ -8,7 +8,7 @@ import httpx
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MError, ValidationError
 from t2m.client.models import RawResult, SegmentsLike, to_segments, warnings_of
 
-__all__ = ["request_body", "raise_for_answer", "raw_result", "auth_headers", "DEFAULT_URL", "DEFAULT_TIMEOUT_S"]
+__all__ = ["DEFAULT_TIMEOUT_S", "DEFAULT_URL", "auth_headers", "raise_for_answer", "raw_result", "request_body"]
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 DEFAULT_TIMEOUT_S = 120.0

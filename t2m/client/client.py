@@ -12,12 +12,11 @@ from typing import Any
 
 import httpx
 
-from t2m.client._common import (DEFAULT_TIMEOUT_S, DEFAULT_URL, auth_headers, raise_for_answer, raw_result,
-                            request_body)
+from t2m.client._common import DEFAULT_TIMEOUT_S, DEFAULT_URL, auth_headers, raise_for_answer, raw_result, request_body
 from t2m.client.errors import T2MConnectionError
 from t2m.client.models import Health, Motion, RawResult, SegmentsLike
 
-__all__ = ["T2MClient", "AsyncT2MClient"]
+__all__ = ["AsyncT2MClient", "T2MClient"]
 
 
 class T2MClient:
@@ -28,7 +27,7 @@ class T2MClient:
         self._http = httpx.Client(base_url=base_url, timeout=timeout, headers=auth_headers(api_key),
                                   transport=transport)
 
-    def __enter__(self) -> "T2MClient":
+    def __enter__(self) -> T2MClient:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -93,7 +92,7 @@ class AsyncT2MClient:
         self._http = httpx.AsyncClient(base_url=base_url, timeout=timeout, headers=auth_headers(api_key),
                                        transport=transport)
 
-    async def __aenter__(self) -> "AsyncT2MClient":
+    async def __aenter__(self) -> AsyncT2MClient:
         return self
 
     async def __aexit__(self, *exc: object) -> None:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["T2MError", "ValidationError", "AuthError", "OverloadedError", "ServerError", "T2MConnectionError"]
+__all__ = ["AuthError", "OverloadedError", "ServerError", "T2MConnectionError", "T2MError", "ValidationError"]
 
 
 class T2MError(Exception):

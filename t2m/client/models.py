@@ -1,13 +1,23 @@
 """The SDK's own small types, mirroring the service's API schema (the SDK imports nothing of the service)."""
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence, Tuple, Union
+from typing import Any, Union
 
 import numpy as np
 
-__all__ = ["Segment", "SegmentSpan", "ModelInfo", "Motion", "Health", "RawResult", "SegmentsLike", "to_segments",
-           "warnings_of"]
+__all__ = [
+    "Health",
+    "ModelInfo",
+    "Motion",
+    "RawResult",
+    "Segment",
+    "SegmentSpan",
+    "SegmentsLike",
+    "to_segments",
+    "warnings_of",
+]
 
 
 @dataclass(frozen=True)
@@ -21,7 +31,7 @@ class Segment:
         return {"text": self.text, "duration": self.duration}
 
 
-SegmentsLike = Union[str, Segment, Sequence[Union[Segment, Tuple[str, Union[float, None]], Mapping[str, Any], str]]]
+SegmentsLike = Union[str, Segment, Sequence[Segment | tuple[str, float | None] | Mapping[str, Any] | str]]
 
 
 def to_segments(segments: SegmentsLike) -> list[Segment]:
@@ -80,7 +90,7 @@ class Motion:
         return self.num_frames / self.fps
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> "Motion":
+    def from_json(cls, data: Mapping[str, Any]) -> Motion:
         frames = np.asarray(data["frames"], dtype=np.float32)
         if frames.size == 0:
             frames = frames.reshape(0, len(data["joints"]), 3)

@@ -9,21 +9,22 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from t2m.bundle import FORMAT_VERSION, MANIFEST_NAME, OPTIONAL_FILES, REQUIRED_FILES, BundleError, files_table
 from t2m.export.verify import verify_bundle
 
 __all__ = [
-    "write_bundle",
-    "verify_bundle",
+    "FORMAT_VERSION",
+    "BundleError",
     "build_random_bundle",
     "check_out_dir",
     "prepare_out_dir",
     "render_model_card",
-    "BundleError",
-    "FORMAT_VERSION",
+    "verify_bundle",
+    "write_bundle",
 ]
 
 # feature_dim -> (skeleton name, joints): HumanML3D (SMPL-22) and KIT-ML layouts

@@ -52,7 +52,7 @@ def read_merges(bpe_path: str | Path, limit: int = CLIP_MERGES) -> list[tuple[st
     return merges  # type: ignore[return-value]
 
 
-def build_clip_tokenizer(bpe_path: str | Path | None = None, context_length: int = CONTEXT_LENGTH):  # noqa: ANN201
+def build_clip_tokenizer(bpe_path: str | Path | None = None, context_length: int = CONTEXT_LENGTH):
     """A `tokenizers.Tokenizer` equivalent to open_clip's SimpleTokenizer + tokenize(..., truncate=True)."""
     from tokenizers import Regex, Tokenizer, decoders, models, normalizers, pre_tokenizers, processors
 

@@ -12,9 +12,10 @@ import json
 import logging
 import os
 import shutil
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -155,7 +156,7 @@ def export_bundle(
     unconditional_branch: bool,
     default_guidance: float,
     training_data: Mapping[str, str],
-    license: str,  # noqa: A002 - the manifest's field name
+    license: str,
     int8: str = "none",
     notes: str = "",
     check_parity: bool = False,
@@ -191,7 +192,7 @@ def export_bundle(
 def _export_into(
     out_dir: Path, *, vq: MotionVQVAE, gpt: MotionGPT, mean: np.ndarray, std: np.ndarray, text_source: TextSource,
     name: str, version: str, unconditional_branch: bool, default_guidance: float, training_data: Mapping[str, str],
-    license: str, int8: str, notes: str, check_parity: bool, parity_steps: int,  # noqa: A002
+    license: str, int8: str, notes: str, check_parity: bool, parity_steps: int,
 ) -> tuple[dict, ExportChecks]:
     from t2m.export.parity import bundle_parity
     from t2m.export.quantize import gpt_int8_report, quantize_graph, text_int8_report

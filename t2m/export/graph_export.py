@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import io
 import warnings
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import torch
 
@@ -69,7 +69,7 @@ def export_graph(
 
 
 def _pin_static_dims(
-    model: "onnx.ModelProto",  # noqa: F821
+    model: onnx.ModelProto,  # noqa: F821
     module: torch.nn.Module,
     args: tuple[torch.Tensor, ...],
     input_names: Sequence[str],
@@ -93,7 +93,7 @@ def _pin_static_dims(
                 dim.dim_value = int(shapes[value.name][axis])
 
 
-def ort_session(path: str | Path, threads: int = 1, optimization: str = "all"):  # noqa: ANN201
+def ort_session(path: str | Path, threads: int = 1, optimization: str = "all"):
     """An onnxruntime CPU session with a fixed thread count (tests and benchmarks must not oversubscribe 2 cores)."""
     import onnxruntime as ort
 

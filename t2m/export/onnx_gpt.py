@@ -26,7 +26,7 @@ class GptStepGraph(nn.Module):
         super().__init__()
         self.gpt = gpt
 
-    def forward(self, cond, token, position, length, past_kv):  # noqa: ANN001, ANN201
+    def forward(self, cond, token, position, length, past_kv):
         return self.gpt.forward_step(cond, token, position, length, past_kv)
 
 
@@ -37,7 +37,7 @@ class GptStepGraphNoLength(nn.Module):
         super().__init__()
         self.gpt = gpt
 
-    def forward(self, cond, token, position, past_kv):  # noqa: ANN001, ANN201
+    def forward(self, cond, token, position, past_kv):
         return self.gpt.forward_step(cond, token, position, None, past_kv)
 
 

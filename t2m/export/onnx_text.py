@@ -49,7 +49,7 @@ def _restore_dropped_inputs(path: str | Path, names: list[str]) -> None:
         onnx.save(model, str(path))
 
 
-def write_tokenizer(tokenizer, path: str | Path, max_length: int, pad_token: str, pad_id: int) -> Path:  # noqa: ANN001
+def write_tokenizer(tokenizer, path: str | Path, max_length: int, pad_token: str, pad_id: int) -> Path:
     """Save a ``tokenizers.Tokenizer`` configured as the service will use it: truncate at max_length, pad to longest."""
     tokenizer.enable_truncation(max_length=max_length)
     tokenizer.enable_padding(pad_id=pad_id, pad_token=pad_token)  # no `length`: pad to the batch's longest
@@ -85,9 +85,9 @@ TINY_CORPUS = (
 TINY_SPECIAL = ("[PAD]", "[UNK]", "[CLS]", "[SEP]")
 
 
-def build_tiny_tokenizer(vocab_size: int = 200):  # noqa: ANN201
+def build_tiny_tokenizer(vocab_size: int = 200):
     """A BERT-style WordPiece tokenizer trained on a few motion sentences (lower-cased, [CLS] ... [SEP])."""
-    from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors, trainers, decoders
+    from tokenizers import Tokenizer, decoders, models, normalizers, pre_tokenizers, processors, trainers
 
     tokenizer = Tokenizer(models.WordPiece(unk_token="[UNK]"))
     tokenizer.normalizer = normalizers.BertNormalizer(lowercase=True)

@@ -17,9 +17,9 @@ from __future__ import annotations
 import logging
 import re
 import shutil
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import torch
@@ -58,7 +58,7 @@ def load_checkpoint_dict(path: str | Path, key: str, allow_pickle: bool = False)
         raise FileNotFoundError(str(path))
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # noqa: BLE001 - torch raises UnpicklingError or RuntimeError here
+    except Exception as error:
         if not allow_pickle:
             first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise ValueError(f"{path}: not loadable as plain tensors ({first_line}); if you trust the file, "
@@ -211,7 +211,7 @@ def import_t2m_gpt(
     version: str = "1.0.0",
     int8: str = "none",
     training_data: Mapping[str, str] | None = None,
-    license: str = RELEASE_LICENSE,  # noqa: A002
+    license: str = RELEASE_LICENSE,
     check_parity: bool = True,
     allow_pickle: bool = False,
 ) -> tuple[dict, ExportChecks]:

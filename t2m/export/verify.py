@@ -9,13 +9,22 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from t2m.bundle import (BundleError, DeclaredTensor, GraphSpec, check_files, check_graph_io, expected_graphs,
-                        parse_manifest, read_manifest_dict)
+from t2m.bundle import (
+    BundleError,
+    DeclaredTensor,
+    GraphSpec,
+    check_files,
+    check_graph_io,
+    expected_graphs,
+    parse_manifest,
+    read_manifest_dict,
+)
 
-__all__ = ["verify_bundle", "check_graph", "check_arrays_and_tokenizer", "main"]
+__all__ = ["check_arrays_and_tokenizer", "check_graph", "main", "verify_bundle"]
 
 
 def _declared(value_info: Any) -> DeclaredTensor:
@@ -34,7 +43,7 @@ def check_graph(path: Path, spec: GraphSpec) -> None:
 
     try:
         model = onnx.load(str(path), load_external_data=False)
-    except Exception as error:  # noqa: BLE001 - any parse failure is a bad file
+    except Exception as error:
         raise BundleError(f"{path.name}: not a readable ONNX model ({error})") from error
     initializers = {init.name for init in model.graph.initializer}
     inputs = [_declared(v) for v in model.graph.input if v.name not in initializers]
@@ -50,7 +59,7 @@ def check_arrays_and_tokenizer(bundle_dir: Path, manifest: Mapping[str, Any]) ->
     for name in ("mean.npy", "std.npy"):
         try:
             array = np.load(bundle_dir / name, allow_pickle=False)
-        except Exception as error:  # noqa: BLE001
+        except Exception as error:
             raise BundleError(f"{name}: not a readable .npy array ({error})") from error
         if array.dtype != np.float32 or array.shape != (manifest["feature_dim"],):
             raise BundleError(
@@ -62,7 +71,7 @@ def check_arrays_and_tokenizer(bundle_dir: Path, manifest: Mapping[str, Any]) ->
 
     try:
         Tokenizer.from_file(str(bundle_dir / "tokenizer.json"))
-    except Exception as error:  # noqa: BLE001
+    except Exception as error:
         raise BundleError(f"tokenizer.json: the tokenizers library cannot load it ({error})") from error
 
 

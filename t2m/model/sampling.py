@@ -9,7 +9,7 @@ max_tokens), then temperature and top-k, then sampling (or argmax when greedy).
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 

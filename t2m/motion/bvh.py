@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterator, Sequence
+from typing import IO
 
 import numpy as np
 
-__all__ = ["BvhError", "BvhMotion", "read_bvh", "write_bvh", "CHANNEL_NAMES"]
+__all__ = ["CHANNEL_NAMES", "BvhError", "BvhMotion", "read_bvh", "write_bvh"]
 
 CHANNEL_NAMES = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 _CANONICAL = {name.lower(): name for name in CHANNEL_NAMES}

@@ -29,8 +29,15 @@ from t2m.motion.ik import joints_to_rotations
 from t2m.motion.quaternion import quat_to_euler
 from t2m.motion.skeleton import SMPL22, Skeleton, get_skeleton
 
-__all__ = ["BVH_NAMES", "ROOT_CHANNELS", "JOINT_CHANNELS", "CM_PER_METRE", "joints_to_bvh_motion", "joints_to_bvh",
-           "bvh_joint_names"]
+__all__ = [
+    "BVH_NAMES",
+    "CM_PER_METRE",
+    "JOINT_CHANNELS",
+    "ROOT_CHANNELS",
+    "bvh_joint_names",
+    "joints_to_bvh",
+    "joints_to_bvh_motion",
+]
 
 CM_PER_METRE = 100.0
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Yrotation", "Xrotation", "Zrotation")

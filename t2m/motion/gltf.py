@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import struct
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pygltflib
@@ -32,7 +32,7 @@ from t2m.motion.ik import joints_to_rotations
 from t2m.motion.quaternion import quat_to_matrix
 from t2m.motion.skeleton import SMPL22, Skeleton, get_skeleton
 
-__all__ = ["joints_to_glb", "glb_joint_positions"]
+__all__ = ["glb_joint_positions", "joints_to_glb"]
 
 _FLOAT = pygltflib.FLOAT
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}

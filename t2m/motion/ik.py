@@ -27,10 +27,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from t2m.motion.quaternion import matrix_to_quat, quat_to_matrix, qbetween
+from t2m.motion.quaternion import matrix_to_quat, qbetween, quat_to_matrix
 from t2m.motion.skeleton import SMPL22, Skeleton, get_skeleton
 
-__all__ = ["IKResult", "joints_to_rotations", "rotations_to_joints", "motion_offsets"]
+__all__ = ["IKResult", "joints_to_rotations", "motion_offsets", "rotations_to_joints"]
 
 _TINY = 1e-9
 # Below this sine of the bend angle a limb counts as straight and its twist falls back to the parent's.

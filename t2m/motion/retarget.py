@@ -7,8 +7,9 @@ HumanML3D processing, so a converted clip is interchangeable with HumanML3D's ow
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence, Union
+from typing import Union
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from t2m.motion.features import normalize_joints
 from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import resample
 
-__all__ = ["JointMap", "BANDAI_NAMCO", "bvh_to_smpl22", "map_positions"]
+__all__ = ["BANDAI_NAMCO", "JointMap", "bvh_to_smpl22", "map_positions"]
 
 # One entry per target joint: a source joint name, or {source name: weight} for a synthesised joint.
 TargetSpec = Union[str, Mapping[str, float]]
@@ -48,7 +49,7 @@ class JointMap:
             raise ValueError(f"JointMap {self.name!r}: units_to_metres must be positive")
 
     @classmethod
-    def from_targets(cls, name: str, targets: Sequence[tuple[str, TargetSpec]], units_to_metres: float) -> "JointMap":
+    def from_targets(cls, name: str, targets: Sequence[tuple[str, TargetSpec]], units_to_metres: float) -> JointMap:
         """Build from [(target joint name, source name | {source: weight}), ...] in target joint order."""
         names, sources = [], []
         for target, spec in targets:

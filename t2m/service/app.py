@@ -10,9 +10,10 @@ import logging
 import math
 import threading
 import time
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any, AsyncIterator, Callable
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
@@ -30,7 +31,7 @@ from t2m.service.middleware import BodySizeLimitMiddleware
 from t2m.service.routes import generate, health, metrics
 from t2m.service.settings import Settings
 
-__all__ = ["create_app", "app_from_env", "load_onnx_engine"]
+__all__ = ["app_from_env", "create_app", "load_onnx_engine"]
 
 log = logging.getLogger("service")
 

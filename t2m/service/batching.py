@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
 
-__all__ = ["QueueFullError", "GenerationTimeout", "MicroBatcher", "rows_of"]
+__all__ = ["GenerationTimeout", "MicroBatcher", "QueueFullError", "rows_of"]
 
 log = logging.getLogger(__name__)
 

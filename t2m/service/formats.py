@@ -13,7 +13,7 @@ import numpy as np
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.types import ModelLimits, Motion
 
-__all__ = ["MEDIA_TYPES", "FILENAMES", "Rendered", "motion_json", "motion_bvh", "motion_glb", "render", "preload"]
+__all__ = ["FILENAMES", "MEDIA_TYPES", "Rendered", "motion_bvh", "motion_glb", "motion_json", "preload", "render"]
 
 MEDIA_TYPES = {"json": "application/json", "bvh": "text/plain; charset=utf-8", "glb": "model/gltf-binary"}
 FILENAMES = {"bvh": "motion.bvh", "glb": "motion.glb", "json": "motion.json"}
@@ -59,7 +59,7 @@ def motion_glb(motion: Motion, skeleton_name: str = "smpl22") -> bytes:
 
 def preload() -> None:
     """Import the BVH and glTF writers now (seconds on a busy machine) rather than in the first request."""
-    import t2m.motion.bvh_export  # noqa: F401
+    import t2m.motion.bvh_export
     import t2m.motion.gltf  # noqa: F401
 
 

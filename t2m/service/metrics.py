@@ -6,12 +6,12 @@ t2m_tokens_generated_total, t2m_segments_generated_total, t2m_queue_depth, t2m_i
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["ServiceMetrics", "MetricsMiddleware"]
+__all__ = ["MetricsMiddleware", "ServiceMetrics"]
 
 LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0)
 

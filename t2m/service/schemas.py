@@ -13,9 +13,25 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstr
 from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
 
 __all__ = [
-    "MAX_SEGMENTS", "MAX_TEXT_CHARS", "MIN_DURATION_S", "MAX_DURATION_S", "MAX_TOTAL_S", "MAX_GUIDANCE",
-    "MAX_TEMPERATURE", "MAX_SEED", "OutputFormat", "Segment", "GenerateRequest", "SegmentSpanOut", "ModelInfo",
-    "MotionResponse", "ModelDetails", "HealthResponse", "ErrorResponse", "model_limit_errors", "to_generation_request",
+    "MAX_DURATION_S",
+    "MAX_GUIDANCE",
+    "MAX_SEED",
+    "MAX_SEGMENTS",
+    "MAX_TEMPERATURE",
+    "MAX_TEXT_CHARS",
+    "MAX_TOTAL_S",
+    "MIN_DURATION_S",
+    "ErrorResponse",
+    "GenerateRequest",
+    "HealthResponse",
+    "ModelDetails",
+    "ModelInfo",
+    "MotionResponse",
+    "OutputFormat",
+    "Segment",
+    "SegmentSpanOut",
+    "model_limit_errors",
+    "to_generation_request",
 ]
 
 MAX_SEGMENTS = 32

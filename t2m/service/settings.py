@@ -6,10 +6,10 @@ the service the same way: `T2M_MAX_QUEUE=4 t2m serve` and `create_app(Settings(m
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import AliasChoices, Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
-from typing_extensions import Annotated
 
 from t2m.bundles import DEFAULT_BUNDLE
 

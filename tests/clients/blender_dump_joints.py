@@ -24,6 +24,7 @@ scene.render.fps = fps  # glTF keys are seconds: at the motion's fps, key k land
 scene.render.fps_base = 1.0
 if kind == "bvh":
     import builtins
+
     from io_anim_bvh import import_bvh
 
     # Debian's Blender 3.4 runs its bundled BVH importer on Python 3.11, where open(path, "rU") raises ValueError

@@ -18,7 +18,7 @@ from urllib.request import urlopen
 
 from websockets.sync.client import ClientConnection, connect
 
-__all__ = ["CHROMIUM_FLAGS", "find_chromium", "CdpError", "CdpConnection", "HeadlessChromium"]
+__all__ = ["CHROMIUM_FLAGS", "CdpConnection", "CdpError", "HeadlessChromium", "find_chromium"]
 
 # Headless, no sandbox (runs as root in containers), no GPU, and no traffic of its own (updates, sync, QUIC probes).
 CHROMIUM_FLAGS = [

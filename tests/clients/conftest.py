@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from tests.headings import full_turn, yaw
 
 REPO = Path(__file__).resolve().parents[2]

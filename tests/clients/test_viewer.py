@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from chromium_cdp import HeadlessChromium, find_chromium
 
 from benchmarks.server_process import running_server
-from chromium_cdp import HeadlessChromium, find_chromium
 
 pytestmark = pytest.mark.clients
 
@@ -50,7 +50,7 @@ def server(bundle_dir, tmp_path_factory):
         yield live
 
 
-@pytest.fixture()
+@pytest.fixture
 def browser(tmp_path):
     if not find_chromium():
         pytest.skip("chromium is not installed (scripts/install_clients.sh)")

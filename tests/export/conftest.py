@@ -35,8 +35,9 @@ def exported_runs(tmp_path_factory):
     import contextlib
     import io
 
-    from t2m.cli.main import main as t2m
     from export_run_fixtures import make_runs
+
+    from t2m.cli.main import main as t2m
 
     root = tmp_path_factory.mktemp("runs")
     vq_run, gpt_run, _ = make_runs(root)

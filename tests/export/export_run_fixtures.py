@@ -9,9 +9,9 @@ def make_runs(root, cond_drop: float = 0.1, length_conditioning: bool = True, te
     import numpy as np
     import torch
 
-    from t2m.model.training.checkpoint import save_checkpoint
     from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.checkpoint import save_checkpoint
 
     torch.manual_seed(0)
     data_dir = root / "data"

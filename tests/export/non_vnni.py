@@ -34,7 +34,7 @@ def _matmul_integer_op(saturate: bool) -> type[OpRun]:
     class MatMulInteger(OpRun):
         op_domain = ""
 
-        def _run(self, a, b, a_zero_point=None, b_zero_point=None):  # noqa: ANN001, ANN202
+        def _run(self, a, b, a_zero_point=None, b_zero_point=None):
             assert b_zero_point is None or not np.any(b_zero_point), "int8 weights are symmetric"
             return (_matmul_integer(a, b, a_zero_point, saturate),)
 
@@ -55,5 +55,5 @@ class ReferenceSession:
     def get_inputs(self) -> list:
         return [type("Input", (), {"name": name})() for name in self._names]
 
-    def run(self, output_names, feeds):  # noqa: ANN001, ANN201
+    def run(self, output_names, feeds):
         return self._evaluator.run(output_names, feeds)

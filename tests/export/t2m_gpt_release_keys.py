@@ -16,7 +16,7 @@ def _conv(state: dict, key: str, out_ch: int, in_ch: int, kernel: int, g: torch.
     state[f"{key}.bias"] = torch.randn(out_ch, generator=g) * 0.01
 
 
-def release_vq_state(feat_dim=263, width=512, code_dim=512, nb_code=512, down_t=2, depth=3, seed=0) -> dict:  # noqa: ANN001
+def release_vq_state(feat_dim=263, width=512, code_dim=512, nb_code=512, down_t=2, depth=3, seed=0) -> dict:
     """The 'net' dict of net_last.pth: 'vqvae.'-prefixed encoder/decoder convs and the quantizer.codebook buffer."""
     g = torch.Generator().manual_seed(seed)
     s: dict[str, torch.Tensor] = {}
@@ -39,7 +39,7 @@ def release_vq_state(feat_dim=263, width=512, code_dim=512, nb_code=512, down_t=
     return s
 
 
-def release_gpt_state(codebook=512, embed=1024, layers=(9, 9), block=51, text_dim=512, ff_rate=4, seed=0,  # noqa: ANN001
+def release_gpt_state(codebook=512, embed=1024, layers=(9, 9), block=51, text_dim=512, ff_rate=4, seed=0,
                       std=0.02) -> dict:
     """The 'trans' dict of net_best_fid.pth: trans_base / trans_head with attn.mask buffers and pos_embedding."""
     g = torch.Generator().manual_seed(seed)

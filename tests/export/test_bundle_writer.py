@@ -10,11 +10,12 @@ import numpy as np
 import onnx
 import pytest
 
+from t2m.bundle import BundleError
 from t2m.export.bundle import build_random_bundle, prepare_out_dir, write_bundle
 from t2m.export.graph_export import ort_session
 from t2m.export.onnx_text import tokenize
-from t2m.bundle import BundleError
-from t2m.export.verify import main as verify_main, verify_bundle
+from t2m.export.verify import main as verify_main
+from t2m.export.verify import verify_bundle
 
 
 def _copy(bundle: Path, tmp_path: Path) -> Path:
@@ -23,7 +24,7 @@ def _copy(bundle: Path, tmp_path: Path) -> Path:
     return target
 
 
-def _edit_manifest(bundle: Path, edit) -> None:  # noqa: ANN001
+def _edit_manifest(bundle: Path, edit) -> None:
     manifest = json.loads((bundle / "manifest.json").read_text())
     edit(manifest)
     (bundle / "manifest.json").write_text(json.dumps(manifest))

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 
+from export_run_fixtures import make_runs
 
 from t2m.cli.main import main as t2m
-from export_run_fixtures import make_runs
 from t2m.export.exporter import export_from_runs
 from t2m.export.verify import verify_bundle
 

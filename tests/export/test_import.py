@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 from t2m.cli.main import main as t2m
 from t2m.export.bundle import build_random_bundle
@@ -17,7 +18,6 @@ from t2m.export.parity import ort_greedy_rollout
 from t2m.export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
-from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 SMALL_VQ = {"width": 64, "code_dim": 32, "nb_code": 64, "down_t": 2, "depth": 3}
 SMALL_GPT = {"codebook": 64, "embed": 128, "layers": (2, 2), "block": 51, "text_dim": 512}

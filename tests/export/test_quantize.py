@@ -16,7 +16,7 @@ from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from tests.export.non_vnni import ReferenceSession
 
 
-def _op_types(path) -> set[str]:  # noqa: ANN001
+def _op_types(path) -> set[str]:
     return {node.op_type for node in onnx.load(str(path)).graph.node}
 
 
@@ -48,7 +48,7 @@ def test_int8_gpt_step_computes_the_same_on_cpus_without_vnni(tmp_path):
     cond /= np.linalg.norm(cond, axis=1, keepdims=True)
     length, shape, steps = np.array([6, 0], np.int64), (c.n_layer, c.n_head, c.head_dim), 6
 
-    def logits(session) -> np.ndarray:  # noqa: ANN001
+    def logits(session) -> np.ndarray:
         return np.stack(ort_greedy_rollout(session, cond, length, shape, steps, c.end_id, 3.0).logits)
 
     ours = quantize_graph(fp32, tmp_path / "int8_7bit.onnx")

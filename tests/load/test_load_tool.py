@@ -6,7 +6,8 @@ import asyncio
 import pytest
 
 from benchmarks.http_latency import main as latency_main
-from benchmarks.load_test import main as load_main, run_phase
+from benchmarks.load_test import main as load_main
+from benchmarks.load_test import run_phase
 from benchmarks.server_process import require_loopback
 
 

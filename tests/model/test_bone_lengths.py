@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import torch
 
+from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from t2m.model.training.bone_lengths import BoneLengths
 from t2m.model.training.train_vq import vq_loss
-from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import SMPL22
 from tests.model.synthetic_motion_data import SAMPLE, _source_motion

@@ -5,8 +5,17 @@ import re
 
 import pytest
 
-from t2m.model.data.captions import (CONTENT_PHRASES, HANDED_PHRASES, STYLE_PHRASES, format_caption_line, make_captions,
-                            mirror_caption, mirror_label, parse_caption_line, pos_tag)
+from t2m.model.data.captions import (
+    CONTENT_PHRASES,
+    HANDED_PHRASES,
+    STYLE_PHRASES,
+    format_caption_line,
+    make_captions,
+    mirror_caption,
+    mirror_label,
+    parse_caption_line,
+    pos_tag,
+)
 
 # both datasets' labels (docs/data.md); dataset-1's `dance-long` has no clip but is a label
 DATASET_1_CONTENTS = ["walk", "run", "dash", "walk-back", "walk-left", "walk-right", "bow", "bye", "byebye", "guide",

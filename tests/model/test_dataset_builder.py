@@ -9,8 +9,15 @@ import numpy as np
 import pytest
 
 from t2m.model.data.captions import mirror_caption, parse_caption_line
-from t2m.model.data.dataset_builder import (BuildOptions, STD_FLOOR, assign_splits, build_dataset, feature_statistics,
-                                   find_clips, observed_side)
+from t2m.model.data.dataset_builder import (
+    STD_FLOOR,
+    BuildOptions,
+    assign_splits,
+    build_dataset,
+    feature_statistics,
+    find_clips,
+    observed_side,
+)
 from t2m.model.data.motion_data import MotionDirectory
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import SMPL22

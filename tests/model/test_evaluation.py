@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.model.evaluation.evaluate import (FRAMES_PER_TOKEN, Clips, EvalOptions, draw, join_windows, pelvis_velocity_jumps,
-                              stream_metrics, windows)
+from t2m.model.evaluation.evaluate import (
+    FRAMES_PER_TOKEN,
+    Clips,
+    EvalOptions,
+    draw,
+    join_windows,
+    pelvis_velocity_jumps,
+    stream_metrics,
+    windows,
+)
 from tests.model.synthetic_motion_data import _source_motion, make_dataset
 
 ROWS = ("Real motion", "VQ reconstruction", "Generation (guidance=1)", "Generation (guidance=3)",
@@ -47,10 +55,10 @@ def fast_text(request, monkeypatch):
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory) -> dict[str, Path]:
     """A 12-clip dataset whose test split lists every clip, and random tiny VQ / GPT / evaluator checkpoints."""
-    from t2m.model.training.checkpoint import save_checkpoint
     from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
     from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.checkpoint import save_checkpoint
 
     root = tmp_path_factory.mktemp("eval")
     data = make_dataset(root / "data", train_clips=8, val_clips=3)
@@ -127,8 +135,8 @@ def test_eval_names_a_checkpoint_of_the_wrong_kind(tiny_runs, tmp_path, capsys):
 
 
 def test_training_batches_and_validation_on_the_tiny_dataset(tiny_runs):
-    from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
     from t2m.model.data.motion_data import MotionDirectory
+    from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
     from t2m.model.training.train_evaluator import load_pairs, make_step_fn, make_val_fn, training_batches
 
     reader = MotionDirectory(tiny_runs["data"], "train")

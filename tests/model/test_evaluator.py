@@ -5,8 +5,14 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.model.networks.evaluator import (EvaluatorConfig, MotionEvaluator, embed_motions, false_negative_mask, info_nce,
-                             pad_batch)
+from t2m.model.networks.evaluator import (
+    EvaluatorConfig,
+    MotionEvaluator,
+    embed_motions,
+    false_negative_mask,
+    info_nce,
+    pad_batch,
+)
 
 TINY = dict(width=32, n_layer=1, n_head=2, embed_dim=16, dropout=0.0)
 

@@ -120,7 +120,7 @@ def test_forward_step_traces_without_value_dependent_control_flow():
             super().__init__()
             self.gpt = gpt
 
-        def forward(self, cond, token, position, length, past_kv):  # noqa: ANN001, ANN201
+        def forward(self, cond, token, position, length, past_kv):
             return self.gpt.forward_step(cond, token, position, length, past_kv)
 
     example = (torch.randn(2, 8), torch.zeros(2, dtype=torch.long), torch.tensor([0]), torch.tensor([3, 0]),

@@ -4,7 +4,13 @@ from __future__ import annotations
 import pytest
 import torch
 
-from t2m.model.networks.quantizers import EMAResetQuantizer, PlainQuantizer, ResidualQuantizer, code_perplexity, nearest_codes
+from t2m.model.networks.quantizers import (
+    EMAResetQuantizer,
+    PlainQuantizer,
+    ResidualQuantizer,
+    code_perplexity,
+    nearest_codes,
+)
 
 torch.set_num_threads(1)
 

@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from synthetic_motion_data import make_dataset
 
-from t2m.model.training.checkpoint import load_model, save_checkpoint
 from t2m.model.data.datasets import TextMotionDataset, VQWindowDataset, open_split, precompute_codes
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.training.train_gpt import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
-from t2m.model.training.loop import LoopSettings, infinite, lr_factor, run_training
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
-from synthetic_motion_data import make_dataset
+from t2m.model.training.checkpoint import load_model, save_checkpoint
+from t2m.model.training.loop import LoopSettings, infinite, lr_factor, run_training
+from t2m.model.training.train_gpt import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
 
 torch.set_num_threads(1)
 
@@ -168,7 +168,7 @@ def _tiny_vq_run(run_dir: Path, steps: int, resume: bool) -> MotionVQVAE:
     windows = torch.randn(8, 16, 263)
     loader = torch.utils.data.DataLoader(windows, batch_size=4, shuffle=True)
 
-    def step_fn(net, batch):  # noqa: ANN001, ANN202
+    def step_fn(net, batch):
         recon, parts = net(batch)
         loss = torch.nn.functional.smooth_l1_loss(recon, batch) + 0.02 * parts["commit"]
         return loss, {"commit": float(parts["commit"].detach())}, len(batch)

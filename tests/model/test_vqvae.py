@@ -4,8 +4,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from t2m.model.training.train_vq import vq_loss
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+from t2m.model.training.train_vq import vq_loss
 
 torch.set_num_threads(1)
 

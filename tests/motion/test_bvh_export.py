@@ -10,7 +10,6 @@ from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import mirror_joints
 from tests.headings import full_turn, yaw
 
-
 MIXAMO = ["Hips", "LeftUpLeg", "RightUpLeg", "Spine", "LeftLeg", "RightLeg", "Spine1", "LeftFoot", "RightFoot",
           "Spine2", "LeftToe", "RightToe", "Neck", "LeftShoulder", "RightShoulder", "Head", "LeftArm", "RightArm",
           "LeftForeArm", "RightForeArm", "LeftHand", "RightHand"]

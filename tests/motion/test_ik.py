@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from t2m.motion.ik import joints_to_rotations, motion_offsets, rotations_to_joints
-from t2m.motion.quaternion import qmul, qfrom_axis_angle
+from t2m.motion.quaternion import qfrom_axis_angle, qmul
 from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import mirror_joints
 from tests.headings import full_turn, yaw

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from t2m.motion.features import (
-    features_to_joints,
     feature_dim,
+    features_to_joints,
     forward_kinematics,
     joints_to_features,
     normalize_joints,

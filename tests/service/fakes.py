@@ -3,13 +3,19 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from t2m.motion.skeleton import SMPL22
-from t2m.service.engine.types import (GenerationCancelled, GenerationRequest, ModelLimits, Motion, SegmentSpan,
-                                  tokens_for_duration)
+from t2m.service.engine.types import (
+    GenerationCancelled,
+    GenerationRequest,
+    ModelLimits,
+    Motion,
+    SegmentSpan,
+    tokens_for_duration,
+)
 
 FAKE_LIMITS = ModelLimits(
     name="fake", version="0.0.1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=64,

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from record_default_outputs import CASES, record  # noqa: E402
+from record_default_outputs import CASES, record
 
 RECORDING = Path(__file__).resolve().parents[1] / "data" / "default_model_outputs.npz"
 

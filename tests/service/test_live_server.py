@@ -10,8 +10,17 @@ import numpy as np
 import pytest
 from fakes import FakeEngine
 
-from t2m.client import (AsyncT2MClient, AuthError, Motion, OverloadedError, Segment, ServerError, T2MClient,
-                    T2MConnectionError, ValidationError)
+from t2m.client import (
+    AsyncT2MClient,
+    AuthError,
+    Motion,
+    OverloadedError,
+    Segment,
+    ServerError,
+    T2MClient,
+    T2MConnectionError,
+    ValidationError,
+)
 from tests.service.conftest import LiveServer, free_port
 
 KEY = {"Authorization": "Bearer test-key"}
@@ -105,29 +114,28 @@ def test_sdk_overload_and_timeout_errors():
     engine = FakeEngine(gate=gate)
     app = create_app(Settings(max_queue=1, batch_window_ms=0, request_timeout_s=1.0, retry_after_s=2),
                      engine_factory=lambda s: engine)
-    with LiveServer(app) as server:
-        with T2MClient(server.url, timeout=10) as t2m:
-            results: list[object] = []
+    with LiveServer(app) as server, T2MClient(server.url, timeout=10) as t2m:
+        results: list[object] = []
 
-            def call() -> None:
-                try:
-                    results.append(t2m.generate("walk", seed=1))
-                except Exception as error:  # collected and checked below
-                    results.append(error)
+        def call() -> None:
+            try:
+                results.append(t2m.generate("walk", seed=1))
+            except Exception as error:  # collected and checked below
+                results.append(error)
 
-            first = threading.Thread(target=call)
-            first.start()
-            while not engine.batches:
-                time.sleep(0.005)
-            second = threading.Thread(target=call)
-            second.start()
-            while app.state.service.batcher.queue_depth < 1:
-                time.sleep(0.005)
-            with pytest.raises(OverloadedError) as overloaded:
-                t2m.generate("walk")
-            assert overloaded.value.retry_after == 2.0 and overloaded.value.status_code == 429
-            first.join(10)
-            second.join(10)
-            timeouts = [r for r in results if isinstance(r, ServerError)]
-            assert timeouts and all(r.status_code == 504 for r in timeouts), results
-            gate.set()
+        first = threading.Thread(target=call)
+        first.start()
+        while not engine.batches:
+            time.sleep(0.005)
+        second = threading.Thread(target=call)
+        second.start()
+        while app.state.service.batcher.queue_depth < 1:
+            time.sleep(0.005)
+        with pytest.raises(OverloadedError) as overloaded:
+            t2m.generate("walk")
+        assert overloaded.value.retry_after == 2.0 and overloaded.value.status_code == 429
+        first.join(10)
+        second.join(10)
+        timeouts = [r for r in results if isinstance(r, ServerError)]
+        assert timeouts and all(r.status_code == 504 for r in timeouts), results
+        gate.set()

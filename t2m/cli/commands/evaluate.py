@@ -53,8 +53,8 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     import torch
 
-    from t2m.model.evaluation.evaluate import EvalOptions, evaluate, load_models, write_report
     from t2m.model.data.motion_data import MotionDirectory
+    from t2m.model.evaluation.evaluate import EvalOptions, evaluate, load_models, write_report
 
     torch.set_num_threads(args.threads)
     options = EvalOptions(split=args.split, repeats=args.repeats, guidance=tuple(args.guidance), seed=args.seed,

@@ -97,10 +97,9 @@ def _joints_to_features(args: argparse.Namespace) -> int:
 
 
 def _bvh_to_joints(args: argparse.Namespace) -> int:
+    from t2m.cli.main import CliError
     from t2m.motion.bvh import read_bvh
     from t2m.motion.retarget import BANDAI_NAMCO, bvh_to_smpl22
-
-    from t2m.cli.main import CliError
 
     if not args.fps > 0:
         raise CliError(f"--fps must be positive, got {args.fps}")

@@ -24,8 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from t2m.cli.main import CliError
     from t2m.bundle import read_manifest
+    from t2m.cli.main import CliError
     from t2m.service.settings import Settings
 
     if not 1 <= args.port <= 65535:

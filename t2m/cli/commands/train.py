@@ -15,7 +15,7 @@ TRAINERS = {
 }
 
 
-def _handler(module_name: str):  # noqa: ANN202
+def _handler(module_name: str):
     def run(args: argparse.Namespace) -> int:
         module = importlib.import_module(module_name)
         return int(module.main(args) or 0)

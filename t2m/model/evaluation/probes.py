@@ -35,8 +35,9 @@ typical frame-to-frame change inside the segments.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Literal, Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -44,11 +45,27 @@ from t2m.motion.features import forward_directions, validate_joints
 from t2m.motion.skeleton import SMPL22
 
 __all__ = [
-    "ProbeResult", "ProbeSpec", "JoinSmoothness", "PROBES", "STREAM", "probe_by_name",
-    "initial_facing", "forward_displacement", "path_length", "heading_change", "wrist_above_shoulder_fraction",
-    "trunk_lean", "front_foot_lift",
-    "probe_walk_forward", "probe_walk_backward", "probe_run_vs_walk", "probe_turn", "probe_raise_hand", "probe_bow",
-    "probe_kick", "join_smoothness",
+    "PROBES",
+    "STREAM",
+    "JoinSmoothness",
+    "ProbeResult",
+    "ProbeSpec",
+    "forward_displacement",
+    "front_foot_lift",
+    "heading_change",
+    "initial_facing",
+    "join_smoothness",
+    "path_length",
+    "probe_bow",
+    "probe_by_name",
+    "probe_kick",
+    "probe_raise_hand",
+    "probe_run_vs_walk",
+    "probe_turn",
+    "probe_walk_backward",
+    "probe_walk_forward",
+    "trunk_lean",
+    "wrist_above_shoulder_fraction",
 ]
 
 Side = Literal["left", "right"]

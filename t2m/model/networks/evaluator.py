@@ -9,11 +9,10 @@ Numbers from it are comparable between our own models, not with the papers' tabl
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Sequence
 
 import numpy as np
-
 import torch
 import torch.nn.functional as F
 from torch import nn

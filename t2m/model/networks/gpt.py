@@ -78,7 +78,7 @@ class GPTConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "GPTConfig":
+    def from_dict(cls, data: dict[str, Any]) -> GPTConfig:
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
@@ -108,10 +108,10 @@ class SinusoidalPositions(nn.Module):
         return self.embed[:, 0, :]
 
 
-def _drop_legacy_keys(*names: str):  # noqa: ANN202
+def _drop_legacy_keys(*names: str):
     """A load_state_dict pre-hook removing T2M-GPT keys that hold nothing this model uses."""
 
-    def hook(state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+    def hook(state_dict, prefix, *args, **kwargs) -> None:
         for name in names:
             state_dict.pop(prefix + name, None)
 
@@ -154,7 +154,7 @@ class CausalSelfAttention(nn.Module):
         q, k, v = self._heads(self.query(x)), self._heads(self.key(x)), self._heads(self.value(x))
         return self._attend(q, k, v, self.causal_mask[:length, :length])
 
-    def forward_step(self, x: torch.Tensor, past_k: torch.Tensor, past_v: torch.Tensor):  # noqa: ANN201
+    def forward_step(self, x: torch.Tensor, past_k: torch.Tensor, past_v: torch.Tensor):
         """x [B, 1, E]; past [B, H, P, hd] -> (y [B, 1, E], k [B, H, P+1, hd], v [B, H, P+1, hd]).
 
         The single new query is the last position, so it may attend to everything: no mask.
@@ -181,7 +181,7 @@ class Block(nn.Module):
         x = x + self.attn(self.ln1(x))
         return x + self.mlp(self.ln2(x))
 
-    def forward_step(self, x: torch.Tensor, past_k: torch.Tensor, past_v: torch.Tensor):  # noqa: ANN201
+    def forward_step(self, x: torch.Tensor, past_k: torch.Tensor, past_v: torch.Tensor):
         y, k, v = self.attn.forward_step(self.ln1(x), past_k, past_v)
         x = x + y
         return x + self.mlp(self.ln2(x)), k, v

@@ -61,7 +61,7 @@ class EMAResetQuantizer(nn.Module):
         self.register_buffer("initialized", torch.tensor(False), persistent=False)
         self._register_load_state_dict_pre_hook(self._mark_loaded_codebook)
 
-    def _mark_loaded_codebook(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+    def _mark_loaded_codebook(self, state_dict, prefix, *args, **kwargs) -> None:
         """A loaded codebook is a trained one: seed the EMA from it instead of re-initialising from a batch."""
         codebook = state_dict.get(prefix + "codebook")
         if codebook is not None and codebook.shape == self.codebook.shape:
@@ -131,7 +131,7 @@ class PlainQuantizer(nn.Module):
         self.register_buffer("initialized", torch.tensor(False), persistent=False)
         self._register_load_state_dict_pre_hook(self._mark_loaded_codebook)
 
-    def _mark_loaded_codebook(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+    def _mark_loaded_codebook(self, state_dict, prefix, *args, **kwargs) -> None:
         if prefix + "codebook" in state_dict:
             self.initialized.fill_(True)
 

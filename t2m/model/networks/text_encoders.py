@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import os
 from abc import ABC, abstractmethod
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 import torch
@@ -191,7 +191,7 @@ class ClipEncoder(TextEncoder):
         )
 
 
-def get_text_encoder(name: str, **kwargs) -> TextEncoder:  # noqa: ANN003
+def get_text_encoder(name: str, **kwargs) -> TextEncoder:
     """'minilm' (kwargs: model_dir, max_length) or 'clip' (kwargs: weights=<local ViT-B-32 weights>)."""
     if name == "minilm":
         return MiniLMEncoder(**kwargs)

@@ -60,7 +60,7 @@ class VQConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "VQConfig":
+    def from_dict(cls, data: dict[str, Any]) -> VQConfig:
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:

@@ -11,15 +11,21 @@ Guo et al. on the val split. Checkpoints follow docs/contracts.md (kind "evaluat
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import torch
 
-from t2m.model.networks.evaluator import (EvaluatorConfig, MotionEvaluator, embed_motions, false_negative_mask, info_nce,
-                             pad_batch)
+from t2m.model.networks.evaluator import (
+    EvaluatorConfig,
+    MotionEvaluator,
+    embed_motions,
+    false_negative_mask,
+    info_nce,
+    pad_batch,
+)
 
 TEXT_CACHE = "text_features.npz"
 

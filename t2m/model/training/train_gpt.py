@@ -177,12 +177,12 @@ def main(args: argparse.Namespace) -> int:
     from torch.utils.data import DataLoader
 
     from t2m.model.data.balancing import run_sampling_weights
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
-    from t2m.model.training.checkpoint import load_model
     from t2m.model.data.datasets import LengthBucketSampler, TextMotionDataset, open_split, trim_padding
+    from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.text_encoders import cache_text_features, get_text_encoder
-    from t2m.model.training.train_vq import parse_milestones
+    from t2m.model.training.checkpoint import load_model
     from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
+    from t2m.model.training.train_vq import parse_milestones
 
     corruption = parse_corruption(args.corruption)
     for name in ("steps", "batch_size", "layers", "heads", "max_tokens"):

@@ -28,8 +28,8 @@ from t2m.model.data.balancing import BALANCE_POWER_HELP
 if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must not pay for it
     import torch
 
-    from t2m.model.training.bone_lengths import BoneLengths
     from t2m.model.networks.vqvae import MotionVQVAE
+    from t2m.model.training.bone_lengths import BoneLengths
 
 QUANTIZERS = ("ema_reset", "plain", "residual")  # = t2m.model.networks.vqvae.QUANTIZERS (kept here so argparse needs no torch)
 
@@ -178,12 +178,11 @@ def window_loader(train_set: Any, batch_size: int, balance_power: float, out: Pa
 
 def main(args: argparse.Namespace) -> int:
     import torch
-    from torch.utils.data import DataLoader
 
-    from t2m.model.training.bone_lengths import BoneLengths
-    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
     from t2m.model.data.datasets import VQWindowDataset, open_split
     from t2m.model.data.motion_data import SKELETON_BY_DIM
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+    from t2m.model.training.bone_lengths import BoneLengths
     from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
     from t2m.motion.skeleton import get_skeleton
 

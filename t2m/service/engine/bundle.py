@@ -14,10 +14,17 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from t2m.bundle import (BundleError, DeclaredTensor, Manifest, check_files, check_graph_io, expected_graphs,
-                        read_manifest)
+from t2m.bundle import (
+    BundleError,
+    DeclaredTensor,
+    Manifest,
+    check_files,
+    check_graph_io,
+    expected_graphs,
+    read_manifest,
+)
 
-__all__ = ["BundleError", "Manifest", "Bundle", "load_bundle", "session_options"]
+__all__ = ["Bundle", "BundleError", "Manifest", "load_bundle", "session_options"]
 
 log = logging.getLogger(__name__)
 

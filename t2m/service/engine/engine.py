@@ -7,8 +7,8 @@ motion.features. Nothing here knows about HTTP.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 
@@ -18,8 +18,15 @@ from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.sampler import GptStep, SamplingJob, sample_codes
 from t2m.service.engine.text import TextEncoder, load_tokenizer
-from t2m.service.engine.types import (GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError,
-                                  SegmentSpan, tokens_for_duration)
+from t2m.service.engine.types import (
+    GenerationCancelled,
+    GenerationRequest,
+    ModelLimits,
+    Motion,
+    RequestLimitError,
+    SegmentSpan,
+    tokens_for_duration,
+)
 
 __all__ = ["OnnxEngine"]
 
@@ -54,7 +61,7 @@ class OnnxEngine:
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
-             inter_op_threads: int = 1) -> "OnnxEngine":
+             inter_op_threads: int = 1) -> OnnxEngine:
         return cls(load_bundle(path, check_hashes=check_hashes, intra_op_threads=intra_op_threads,
                                inter_op_threads=inter_op_threads))
 

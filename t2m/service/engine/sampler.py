@@ -10,13 +10,13 @@ per step, segments in request order), so a request's codes do not depend on what
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 import onnxruntime as ort
 
-__all__ = ["SamplingJob", "GptStep", "sample_tokens", "sample_codes"]
+__all__ = ["GptStep", "SamplingJob", "sample_codes", "sample_tokens"]
 
 
 @dataclass

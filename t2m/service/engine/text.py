@@ -5,8 +5,8 @@ All texts of one request go through the graph as one padded batch; pooling and n
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import onnxruntime as ort

@@ -6,13 +6,23 @@ call from the CLI, the batcher and tests alike.
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 
-__all__ = ["tokens_for_duration", "ModelLimits", "SegmentRequest", "GenerationRequest", "SegmentSpan", "Motion",
-           "GenerationCancelled", "RequestLimitError", "Engine"]
+__all__ = [
+    "Engine",
+    "GenerationCancelled",
+    "GenerationRequest",
+    "ModelLimits",
+    "Motion",
+    "RequestLimitError",
+    "SegmentRequest",
+    "SegmentSpan",
+    "tokens_for_duration",
+]
 
 
 def tokens_for_duration(duration: float, fps: int = 20, frames_per_token: int = 4) -> int:

@@ -12,10 +12,15 @@ from t2m.service.batching import GenerationTimeout, QueueFullError
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.engine.types import GenerationCancelled, RequestLimitError
 from t2m.service.formats import render
-from t2m.service.schemas import (ErrorResponse, GenerateRequest, MotionResponse, model_limit_errors,
-                             to_generation_request)
+from t2m.service.schemas import (
+    ErrorResponse,
+    GenerateRequest,
+    MotionResponse,
+    model_limit_errors,
+    to_generation_request,
+)
 
-__all__ = ["router", "RANDOM_SEED_BITS"]
+__all__ = ["RANDOM_SEED_BITS", "router"]
 
 RANDOM_SEED_BITS = 31   # seeds we pick fit any client's integers (JavaScript included)
 
