@@ -86,3 +86,52 @@ def test_the_checker_sees_nested_and_relative_imports(tmp_path, monkeypatch):
     (tmp_path / "motion").mkdir()
     (tmp_path / "motion" / "features.py").write_text("import numpy\nimport scipy.ndimage\n")
     assert violations("motion") == ["motion/features.py:2 imports scipy (motion/ is numpy-only)"]
+
+
+def module_imports() -> dict[str, set[str]]:
+    """module -> the t2m modules it imports (at any depth of the file), by `ast`."""
+    graph: dict[str, set[str]] = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        parts = path.relative_to(ROOT.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        found: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                found |= {alias.name for alias in node.names if alias.name.startswith("t2m.")}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("t2m."):
+                found.add(node.module or "")
+        graph[name] = found
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str]:
+    """One import cycle between modules (a module importing a package counts as importing its __init__), or []."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(module: str) -> list[str]:
+        state[module] = 1
+        stack.append(module)
+        for target in sorted(graph.get(module, ())):
+            if target not in graph or target == module:
+                continue
+            if state.get(target) == 1:
+                return [*stack[stack.index(target):], target]
+            if target not in state and (cycle := visit(target)):
+                return cycle
+        state[module] = 2
+        stack.pop()
+        return []
+
+    for module in sorted(graph):
+        if module not in state and (cycle := visit(module)):
+            return cycle
+    return []
+
+
+def test_no_import_cycles():
+    assert find_cycle(module_imports()) == []
+
+
+def test_the_cycle_finder_can_fail():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]

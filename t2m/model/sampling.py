@@ -1,122 +1,64 @@
-"""The PyTorch reference sampler: the service's generation recipe (docs/contracts.md), step by step with a KV cache.
+"""The PyTorch reference sampler: MotionGPT.forward_step as the step of the shared GPT loop (t2m.decoding.gpt).
 
-Per segment one conditional row and, when guidance != 1, one unconditional row whose
-condition is zeros (the null condition trained by condition dropout); both rows keep
-the segment's length input. All rows step in lockstep. At every step:
-logits = uncond + s * (cond - uncond), then the length rule (End masked before a
-segment's target, forced at it; a free segment gets at least one code and at most
-max_tokens), then temperature and top-k, then sampling (or argmax when greedy).
+The service runs the same loop over gpt_step.onnx, so the recipe (guidance, the End rule, temperature, top-k, one
+uniform draw per segment per step from a numpy Generator) is written once; for the same seed the reference and the
+service choose the same codes whenever their logits agree.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
+from t2m.decoding.gpt import SamplingJob
+from t2m.decoding.gpt import sample_codes as run_gpt_loop
 from t2m.model.networks.gpt import MotionGPT
 
-
-def guided_logits(cond_logits: torch.Tensor, uncond_logits: torch.Tensor, guidance: float) -> torch.Tensor:
-    """Classifier-free guidance: uncond + s * (cond - uncond). s = 1 gives the conditional logits."""
-    return uncond_logits + guidance * (cond_logits - uncond_logits)
+__all__ = ["TorchGptStep", "sample_codes"]
 
 
-def length_rule_mask(
-    step: int, target_tokens: Sequence[int | None], codebook_size: int, max_tokens: int
-) -> torch.Tensor:
-    """Additive mask [B, K+1] for the code emitted at ``step`` (0-based): 0 where allowed, -inf where not.
+class TorchGptStep:
+    """MotionGPT.forward_step with numpy in and out (the cache stays a float32 array between steps)."""
 
-    Target n: End forbidden while step < n, only End allowed at step n.
-    Free (None): End forbidden at step 0, only End allowed at step max_tokens.
-    """
-    mask = torch.zeros(len(target_tokens), codebook_size + 1)
-    for row, target in enumerate(target_tokens):
-        stop_at = max_tokens if target is None else target
-        if step < stop_at and (target is not None or step == 0):
-            mask[row, codebook_size] = float("-inf")
-        if step >= stop_at:
-            mask[row, :codebook_size] = float("-inf")
-    return mask
+    def __init__(self, gpt: MotionGPT) -> None:
+        self.gpt = gpt
 
+    def empty_cache(self, batch: int) -> np.ndarray:
+        return self.gpt.empty_cache(batch).numpy()
 
-def filter_logits(logits: torch.Tensor, temperature: float, top_k: int | None) -> torch.Tensor:
-    """Divide by the temperature and keep only the top_k classes of each row (others -inf)."""
-    logits = logits / temperature
-    if top_k is not None and 0 < top_k < logits.shape[-1]:
-        kth = torch.topk(logits, top_k, dim=-1).values[:, -1:]
-        logits = logits.masked_fill(logits < kth, float("-inf"))
-    return logits
+    @torch.no_grad()
+    def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lengths = torch.from_numpy(length) if self.gpt.config.length_conditioning else torch.zeros(len(length),
+                                                                                                     dtype=torch.long)
+        logits, present = self.gpt.forward_step(torch.from_numpy(cond), torch.from_numpy(token), position, lengths,
+                                                torch.from_numpy(np.ascontiguousarray(past)))
+        return logits.numpy(), present.numpy()
 
 
-def check_targets(target_tokens: Sequence[int | None], max_tokens: int) -> None:
-    for index, target in enumerate(target_tokens):
-        if target is not None and not 1 <= int(target) <= max_tokens:
-            raise ValueError(f"target_tokens[{index}] must be in 1..{max_tokens} or None, got {target}")
-
-
-@torch.no_grad()
-def sample_codes(
-    gpt: MotionGPT,
-    cond: torch.Tensor,
-    target_tokens: Sequence[int | None],
-    guidance: float = 1.0,
-    temperature: float = 1.0,
-    top_k: int | None = None,
-    generator: torch.Generator | None = None,
-    greedy: bool = False,
-) -> list[list[int]]:
-    """Generate one code sequence per condition row.
-
-    cond [B, Dt] text features; target_tokens[i] = number of codes for row i (None = free length,
-    stop on End). temperature 0 or greedy=True picks the argmax. Returns B lists of code ids (< K).
-    """
+def sample_codes(gpt: MotionGPT, cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int | None],
+                 guidance: float = 1.0, temperature: float = 1.0, top_k: int | None = None,
+                 rng: np.random.Generator | int | None = None, greedy: bool = False) -> list[list[int]]:
+    """One code sequence per condition row (cond [B, Dt]); target_tokens[i] codes for row i, None = free length
+    (stop on End). temperature 0 or greedy=True picks the argmax. Returns B lists of code ids (< codebook size)."""
+    conds = np.asarray(cond.detach().cpu().numpy() if isinstance(cond, torch.Tensor) else cond, dtype=np.float32)
+    if len(target_tokens) != len(conds):
+        raise ValueError(f"target_tokens has {len(target_tokens)} entries for {len(conds)} condition rows")
     config = gpt.config
-    batch = cond.shape[0]
-    if len(target_tokens) != batch:
-        raise ValueError(f"target_tokens has {len(target_tokens)} entries for {batch} condition rows")
-    check_targets(target_tokens, config.max_tokens)
-    greedy = greedy or temperature == 0
-    use_guidance = guidance != 1.0
+    for index, target in enumerate(target_tokens):
+        if target is not None and not 1 <= int(target) <= config.max_tokens:
+            raise ValueError(f"target_tokens[{index}] must be in 1..{config.max_tokens} or None, got {target}")
+    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    job = SamplingJob(conds=conds, targets=[None if t is None else int(t) for t in target_tokens], guidance=guidance,
+                      temperature=temperature if temperature > 0 else 1.0, top_k=top_k, rng=generator,
+                      greedy=greedy or temperature == 0)
     was_training = gpt.training
     gpt.eval()
-
-    lengths = torch.tensor(
-        [int(t) if (t is not None and config.length_conditioning) else 0 for t in target_tokens], dtype=torch.long
-    )
-    rows_cond, rows_length = cond.float(), lengths
-    if use_guidance:
-        rows_cond = torch.cat([rows_cond, torch.zeros_like(rows_cond)])
-        rows_length = torch.cat([lengths, lengths])
-    rows = rows_cond.shape[0]
-
-    past_kv = gpt.empty_cache(rows, device=cond.device)
-    token = torch.zeros(rows, dtype=torch.long, device=cond.device)
-    codes: list[list[int]] = [[] for _ in range(batch)]
-    finished = [False] * batch
-    end_id = config.end_id
     try:
-        for step in range(config.max_tokens + 1):
-            mask = length_rule_mask(step, target_tokens, config.codebook_size, config.max_tokens)
-            forced_end = torch.isinf(mask[:, :end_id]).all(dim=1)
-            if all(done or bool(forced) for done, forced in zip(finished, forced_end)):
-                break  # every row is finished or must emit End now: no need to run the model
-            logits, past_kv = gpt.forward_step(rows_cond, token, step, rows_length, past_kv)
-            if use_guidance:
-                logits = guided_logits(logits[:batch], logits[batch:], guidance)
-            logits = logits + mask.to(logits.device)
-            if greedy:
-                next_token = logits.argmax(dim=-1)
-            else:
-                probs = torch.softmax(filter_logits(logits, temperature, top_k), dim=-1)
-                next_token = torch.multinomial(probs, 1, generator=generator)[:, 0]
-            for row in range(batch):
-                if finished[row]:
-                    continue
-                if int(next_token[row]) == end_id:
-                    finished[row] = True
-                else:
-                    codes[row].append(int(next_token[row]))
-            token = torch.cat([next_token, next_token]) if use_guidance else next_token
+        (codes,) = run_gpt_loop(TorchGptStep(gpt), [job], config.max_tokens, config.end_id)
     finally:
         gpt.train(was_training)
-    return codes
+    if codes is None:  # pragma: no cover - a job without a cancel callback is never cancelled
+        raise RuntimeError("the reference sampler's job was cancelled")
+    return [row.tolist() for row in codes]

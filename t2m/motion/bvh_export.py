@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from t2m.motion.bvh import BvhMotion, write_bvh
+from t2m.motion.constants import FPS
 from t2m.motion.ik import joints_to_rotations
 from t2m.motion.quaternion import quat_to_euler
 from t2m.motion.skeleton import SMPL22, Skeleton, get_skeleton
@@ -72,7 +73,7 @@ def _end_site(skeleton: Skeleton, joint: int, offsets: np.ndarray) -> np.ndarray
     return direction * _END_SITE_LENGTHS.get(skeleton.joint_names[joint], 0.5 * length)
 
 
-def joints_to_bvh_motion(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, fps: float = 20.0) -> BvhMotion:
+def joints_to_bvh_motion(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, fps: float = FPS) -> BvhMotion:
     """The BvhMotion (centimetres, degrees) whose forward kinematics reproduces `joints` [T, J, 3] (metres)."""
     skeleton = get_skeleton(skeleton)
     if not (np.isfinite(fps) and fps > 0):
@@ -108,6 +109,6 @@ def joints_to_bvh_motion(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, 
     )
 
 
-def joints_to_bvh(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, fps: float = 20.0) -> str:
+def joints_to_bvh(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, fps: float = FPS) -> str:
     """The text of a BVH file (see the module docstring for names, units and channels) animating `joints`."""
     return write_bvh(None, joints_to_bvh_motion(joints, skeleton, fps), precision=_PRECISION)

@@ -28,6 +28,7 @@ import pygltflib
 import trimesh
 
 from t2m.motion.bvh_export import bvh_joint_names
+from t2m.motion.constants import FPS
 from t2m.motion.ik import joints_to_rotations
 from t2m.motion.quaternion import quat_to_matrix
 from t2m.motion.skeleton import SMPL22, Skeleton, get_skeleton
@@ -122,7 +123,7 @@ def _body_mesh(skeleton: Skeleton, rest_world: np.ndarray, offsets: np.ndarray) 
             np.concatenate(faces).reshape(-1), np.concatenate(owners))
 
 
-def joints_to_glb(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, fps: float = 20.0,
+def joints_to_glb(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, fps: float = FPS,
                   body: bool = True) -> bytes:
     """A .glb (bytes) animating `joints` [T, J, 3] (metres, Y up) at `fps`; see the module docstring."""
     skeleton = get_skeleton(skeleton)

@@ -14,6 +14,7 @@ from typing import Union
 import numpy as np
 
 from t2m.motion.bvh import BvhMotion
+from t2m.motion.constants import FPS
 from t2m.motion.features import normalize_joints
 from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import resample
@@ -119,7 +120,7 @@ def _clean_fps(fps: float) -> float:
     return float(round(fps)) if abs(fps - round(fps)) < 1e-3 else fps
 
 
-def bvh_to_smpl22(bvh: BvhMotion, joint_map: JointMap = BANDAI_NAMCO, target_fps: float = 20) -> np.ndarray:
+def bvh_to_smpl22(bvh: BvhMotion, joint_map: JointMap = BANDAI_NAMCO, target_fps: float = FPS) -> np.ndarray:
     """FK -> joint map -> metres -> resample to `target_fps` -> HumanML3D normalisation. Returns float32 [T, 22, 3]."""
     if len(joint_map.target_names) != len(SMPL22.joint_names):
         raise ValueError(f"joint map {joint_map.name!r} has {len(joint_map.target_names)} targets, "

@@ -11,9 +11,10 @@ import onnx
 import pytest
 
 from t2m.bundle import BundleError
-from t2m.export.bundle import build_random_bundle, prepare_out_dir, write_bundle
+from t2m.export.bundle import prepare_out_dir, write_bundle
 from t2m.export.graph_export import ort_session
 from t2m.export.onnx_text import tokenize
+from t2m.export.random_bundle import build_random_bundle
 from t2m.export.verify import main as verify_main
 from t2m.export.verify import verify_bundle
 

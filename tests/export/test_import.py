@@ -12,9 +12,9 @@ import torch
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 from t2m.cli.main import main as t2m
-from t2m.export.bundle import build_random_bundle
 from t2m.export.graph_export import ort_session
 from t2m.export.parity import ort_greedy_rollout
+from t2m.export.random_bundle import build_random_bundle
 from t2m.export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig

@@ -1,11 +1,14 @@
-"""The reference sampler: guidance formula, the End rule, greedy parity with the full forward, top-k, seeds."""
+"""The PyTorch reference sampler (t2m.model.sampling over t2m.decoding.gpt): the End rule, greedy parity with the
+full forward, top-k, seeds."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
+from t2m.decoding.tokens import guided_logits, sample_tokens
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.sampling import filter_logits, guided_logits, length_rule_mask, sample_codes
+from t2m.model.sampling import sample_codes
 
 torch.set_num_threads(1)
 K = 12
@@ -32,10 +35,11 @@ def constant_logits_gpt(logits: torch.Tensor) -> MotionGPT:
 
 
 def test_guidance_formula():
-    cond, uncond = torch.randn(4, 13), torch.randn(4, 13)
-    torch.testing.assert_close(guided_logits(cond, uncond, 3.0), uncond + 3.0 * (cond - uncond))
-    torch.testing.assert_close(guided_logits(cond, uncond, 1.0), cond)
-    torch.testing.assert_close(guided_logits(cond, uncond, 0.0), uncond)
+    rng = np.random.default_rng(0)
+    cond, uncond = rng.normal(size=(4, 13)), rng.normal(size=(4, 13))
+    np.testing.assert_allclose(guided_logits(cond, uncond, 3.0), uncond + 3.0 * (cond - uncond))
+    np.testing.assert_allclose(guided_logits(cond, uncond, 1.0), cond)
+    np.testing.assert_allclose(guided_logits(cond, uncond, 0.0), uncond)
 
 
 def test_end_is_masked_before_the_target_and_forced_at_it():
@@ -52,18 +56,8 @@ def test_end_is_masked_before_the_target_and_forced_at_it():
     never_end[4] = 5.0
     gpt = constant_logits_gpt(never_end)
     codes = sample_codes(gpt, cond, [5, MAX_TOKENS, None], guidance=2.0, temperature=0.7, top_k=3,
-                         generator=torch.Generator().manual_seed(0))
+                         rng=0)
     assert [len(c) for c in codes] == [5, MAX_TOKENS, MAX_TOKENS]  # End forced at the target / at max_tokens
-
-
-def test_length_rule_mask_values():
-    mask = length_rule_mask(0, [2, None], K, MAX_TOKENS)
-    assert torch.isinf(mask[:, K]).all() and (mask[:, :K] == 0).all()
-    mask = length_rule_mask(2, [2, None], K, MAX_TOKENS)
-    assert torch.isinf(mask[0, :K]).all() and mask[0, K] == 0  # only End at the target
-    assert (mask[1] == 0).all()  # free row: End allowed after step 0
-    mask = length_rule_mask(MAX_TOKENS, [None], K, MAX_TOKENS)
-    assert torch.isinf(mask[0, :K]).all() and mask[0, K] == 0
 
 
 def manual_greedy(gpt: MotionGPT, cond: torch.Tensor, target: int, guidance: float) -> list[int]:
@@ -96,18 +90,31 @@ def test_top_k_one_is_greedy_and_seeds_repeat():
     gpt = tiny_gpt()
     cond = torch.randn(2, 8)
     greedy = sample_codes(gpt, cond, [5, None], guidance=3.0, greedy=True)
-    top1 = sample_codes(gpt, cond, [5, None], guidance=3.0, top_k=1, generator=torch.Generator().manual_seed(1))
+    top1 = sample_codes(gpt, cond, [5, None], guidance=3.0, top_k=1, rng=1)
     assert greedy == top1
-    first = sample_codes(gpt, cond, [6, 6], temperature=1.5, generator=torch.Generator().manual_seed(7))
-    again = sample_codes(gpt, cond, [6, 6], temperature=1.5, generator=torch.Generator().manual_seed(7))
+    first = sample_codes(gpt, cond, [6, 6], temperature=1.5, rng=7)
+    again = sample_codes(gpt, cond, [6, 6], temperature=1.5, rng=7)
     assert first == again
 
 
-def test_filter_logits_keeps_top_k():
-    logits = torch.tensor([[1.0, 5.0, 3.0, 4.0]])
-    kept = filter_logits(logits, temperature=2.0, top_k=2)
-    assert torch.isinf(kept[0, [0, 2]]).all()
-    torch.testing.assert_close(kept[0, [1, 3]], torch.tensor([2.5, 2.0]))
+def test_sample_tokens_keeps_top_k_and_draws_once_per_row():
+    logits = np.array([[1.0, 5.0, 3.0, 4.0, -9.0]] * 2000)
+    drawn = sample_tokens(logits, np.ones(2000, bool), end_id=4, temperature=2.0, top_k=2,
+                          rng=np.random.default_rng(0))
+    assert set(drawn.tolist()) == {1, 3}                           # only the two largest classes
+    share = (drawn == 1).mean()                                    # softmax([5, 4] / 2): 0.622 for class 1
+    assert abs(share - 1 / (1 + np.exp(-0.5))) < 0.03
+    rng = np.random.default_rng(5)
+    sample_tokens(logits[:7], np.ones(7, bool), 4, 1.0, None, rng)
+    assert rng.bit_generator.state == _advanced(5, 7)              # 7 rows -> exactly 7 uniforms drawn
+    greedy = sample_tokens(logits[:3], np.zeros(3, bool), 4, 1.0, None, np.random.default_rng(0), greedy=True)
+    assert greedy.tolist() == [1, 1, 1]
+
+
+def _advanced(seed: int, draws: int) -> dict:
+    rng = np.random.default_rng(seed)
+    rng.random(draws)
+    return rng.bit_generator.state
 
 
 def test_bad_targets_raise():

@@ -23,7 +23,7 @@ def random_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny random-weight bundle from export.bundle (codebook 32, max_tokens 50, length conditioning, guidance)."""
     import torch
 
-    from t2m.export.bundle import build_random_bundle
+    from t2m.export.random_bundle import build_random_bundle
 
     torch.set_num_threads(1)
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random", seed=0)

@@ -47,13 +47,13 @@ from t2m.motion.features import feature_dim, features_to_joints, joints_to_featu
 from t2m.motion.retarget import BANDAI_NAMCO, bvh_to_smpl22
 from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import mirror_joints
+from t2m.motion.constants import FPS
 
 __all__ = ["ClipSource", "BuildOptions", "find_clips", "build_dataset", "feature_statistics", "assign_splits",
            "open_source"]
 
 log = logging.getLogger("t2m.data")
 
-FPS = 20
 MIN_FRAMES = 20
 MAX_FRAMES = 196
 STD_FLOOR = 1e-3

@@ -35,9 +35,7 @@ import torch
 
 from t2m.model.evaluation import metrics
 from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_texts
-
-FPS = 20
-FRAMES_PER_TOKEN = 4
+from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 
 @dataclass
@@ -243,7 +241,7 @@ def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size:
 
 
 def sample(models: Models, cond: np.ndarray, tokens: Sequence[int], guidance: float, options: EvalOptions,
-           generator: torch.Generator, desc: str) -> list[list[int]]:
+           generator: np.random.Generator, desc: str) -> list[list[int]]:
     """GPT code sequences of exactly `tokens[i]` codes for each condition row, in batches."""
     from tqdm import tqdm
 
@@ -255,7 +253,7 @@ def sample(models: Models, cond: np.ndarray, tokens: Sequence[int], guidance: fl
         stop = start + options.batch_size
         codes += sample_codes(models.gpt, torch.from_numpy(np.asarray(cond[start:stop], np.float32)),
                               [int(t) for t in tokens[start:stop]], guidance=guidance,
-                              temperature=options.temperature, top_k=options.top_k, generator=generator)
+                              temperature=options.temperature, top_k=options.top_k, rng=generator)
     return codes
 
 
@@ -335,7 +333,7 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
     for repeat in tqdm(range(options.repeats), desc="evaluation repeats", unit="repeat", disable=not options.progress):
         seed = options.seed * 1000 + repeat
         rng = np.random.default_rng(seed)
-        generator = torch.Generator().manual_seed(seed)
+        generator = np.random.default_rng([seed, 1])   # the sampling stream, apart from the crop draws
         reference, real = draw(clips, max_frames, rng), draw(clips, max_frames, rng)
         reference_emb = embed_motions(evaluator, reference.motions, normalized=False)
         text_emb_a = embed_texts(evaluator, texts(models.evaluator_text, reference.captions))
@@ -384,7 +382,7 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
 
 
 def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], streams: np.ndarray, guidance: float,
-                   options: EvalOptions, generator: torch.Generator,
+                   options: EvalOptions, generator: np.random.Generator,
                    real_window_emb: np.ndarray | None) -> dict[str, float]:
     """T2LM's streams: per-sentence codes, concatenated, decoded once; sliding/transition FID and pelvis jumps."""
     flat = streams.reshape(-1)

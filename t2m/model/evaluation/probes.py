@@ -41,6 +41,7 @@ from typing import Literal
 
 import numpy as np
 
+from t2m.motion.constants import FPS
 from t2m.motion.features import forward_directions, validate_joints
 from t2m.motion.skeleton import SMPL22
 
@@ -264,7 +265,7 @@ class JoinSmoothness:
         return max(self.ratios) if self.ratios else 0.0
 
 
-def join_smoothness(joints: np.ndarray, join_frames: Sequence[int], fps: float = 20.0) -> JoinSmoothness:
+def join_smoothness(joints: np.ndarray, join_frames: Sequence[int], fps: float = FPS) -> JoinSmoothness:
     """Velocity jumps at the joins `join_frames` (first frame of each segment after the first).
 
     The pelvis velocity v[t] = (p[t+1] - p[t]) * fps; its change a[t] = |v[t] - v[t-1]| is the frame-to-frame

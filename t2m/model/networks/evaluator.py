@@ -17,6 +17,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from t2m.motion.constants import FRAMES_PER_TOKEN
+
 
 @dataclass
 class EvaluatorConfig:
@@ -28,7 +30,7 @@ class EvaluatorConfig:
     n_layer: int = 2
     n_head: int = 4
     max_frames: int = 196       # HumanML3D's longest clip (9.8 s at 20 fps)
-    downsample: int = 4         # frames per transformer token
+    downsample: int = FRAMES_PER_TOKEN  # frames per transformer token
     dropout: float = 0.1
     temperature: float = 0.1
 

@@ -26,6 +26,7 @@ from t2m.model.networks.evaluator import (
     info_nce,
     pad_batch,
 )
+from t2m.motion.constants import FRAMES_PER_TOKEN
 
 TEXT_CACHE = "text_features.npz"
 
@@ -198,7 +199,7 @@ def main(args: argparse.Namespace) -> int:
 
     model = MotionEvaluator(config)
     model.set_normalization(train_reader.mean, train_reader.std)
-    unit = 4  # frames per VQ token: real crops match the lengths generated motions can have
+    unit = FRAMES_PER_TOKEN  # real crops match the lengths generated motions can have
     settings = LoopSettings(steps=args.steps, lr=args.lr, weight_decay=0.01, warmup_steps=min(100, args.steps // 10),
                             lr_milestones=(0.8,), lr_gamma=0.1, log_every=min(50, args.steps),
                             val_every=args.val_every, save_every=args.val_every, seed=args.seed)

@@ -12,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
+from t2m.decoding.gpt import SamplingJob, sample_codes
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.decoder import Decoder
-from t2m.service.engine.sampler import GptStep, SamplingJob, sample_codes
+from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.text import TextEncoder, load_tokenizer
 from t2m.service.engine.types import (
     GenerationCancelled,
@@ -45,7 +46,7 @@ class OnnxEngine:
             raise BundleError(f"manifest.json: field 'num_joints' is {manifest.num_joints} but skeleton "
                               f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
-        self.step = GptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
+        self.step = OnnxGptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
                             bundle.gpt_has_length_input)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
         raw = manifest.raw

@@ -12,6 +12,8 @@ from typing import Protocol
 
 import numpy as np
 
+from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
+
 __all__ = [
     "Engine",
     "GenerationCancelled",
@@ -25,7 +27,7 @@ __all__ = [
 ]
 
 
-def tokens_for_duration(duration: float, fps: int = 20, frames_per_token: int = 4) -> int:
+def tokens_for_duration(duration: float, fps: int = FPS, frames_per_token: int = FRAMES_PER_TOKEN) -> int:
     """Code tokens for a segment of `duration` seconds: round(duration * fps / frames_per_token), at least 1.
 
     Python's round (half to even) is the documented formula: frames = round(duration * 20 / 4) * 4.

@@ -1,0 +1,34 @@
+"""Picking the next token from logits: guidance, End masking, temperature, top-k, one uniform draw per row.
+
+Each row takes exactly one `rng.random()` draw per step (none when greedy), so a request's choices depend only on
+its own generator and its own logits, not on which other rows share its batch.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["guided_logits", "sample_tokens"]
+
+
+def guided_logits(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndarray:
+    """Classifier-free guidance: uncond + s * (cond - uncond); s = 1 gives the conditional logits."""
+    return uncond + scale * (cond - uncond)
+
+
+def sample_tokens(logits: np.ndarray, mask_end: np.ndarray, end_id: int, temperature: float, top_k: int | None,
+                  rng: np.random.Generator, greedy: bool = False) -> np.ndarray:
+    """One class per row of `logits` [S, V+1] with End masked where `mask_end`: the argmax when `greedy`, else a
+    draw from softmax(logits / temperature) restricted to the top_k classes (inverse CDF of one uniform)."""
+    logits = np.array(logits, dtype=np.float64)
+    logits[mask_end, end_id] = -np.inf
+    if greedy:
+        return logits.argmax(axis=1).astype(np.int64)
+    logits /= temperature
+    if top_k is not None and top_k < logits.shape[1]:
+        kth_largest = np.partition(logits, -top_k, axis=1)[:, -top_k, None]
+        logits[logits < kth_largest] = -np.inf
+    logits -= logits.max(axis=1, keepdims=True)
+    cdf = np.cumsum(np.exp(logits), axis=1)
+    draws = rng.random(len(logits)) * cdf[:, -1]
+    choice = (cdf <= draws[:, None]).sum(axis=1)                  # first index whose cdf exceeds the draw
+    return np.minimum(choice, logits.shape[1] - 1).astype(np.int64)
