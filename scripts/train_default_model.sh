@@ -31,6 +31,9 @@ t2m train evaluator --data "$DATA" --out "$RUNS/evaluator" --text-cache "$RUNS/t
 # The bundle: float32 decoder and GPT step graphs, int8 text encoder (41 MB in all), with the model card appended.
 t2m export --vq "$RUNS/vq" --gpt "$RUNS/gpt" --int8 text --name t2m-bandai-minilm --version 0.3.0 \
   --model-card docs/model_card_default.md -o t2m/bundles/default
+# The index of the training captions and its calibrated unknown-text threshold (+4.8 MB, ~10 s; the card gets its
+# "Unknown sentences" section with the false/missed warning rates).
+t2m index-captions t2m/bundles/default --data "$DATA"
 
 # The evaluation table and the kinematic probes of the model card.
 t2m eval --data "$DATA" --evaluator "$RUNS/evaluator" --vq "$RUNS/vq" --gpt "$RUNS/gpt" --guidance 1 3 --repeats 3 \

@@ -43,7 +43,8 @@ def load_onnx_engine(settings: Settings) -> Engine:
     from t2m.service.engine.engine import OnnxEngine
 
     return OnnxEngine.load(settings.bundle_path, check_hashes=settings.verify_hashes,
-                           intra_op_threads=settings.intra_op_threads, inter_op_threads=settings.inter_op_threads)
+                           intra_op_threads=settings.intra_op_threads, inter_op_threads=settings.inter_op_threads,
+                           unknown_text=settings.unknown_text)
 
 
 def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engine]) -> None:

@@ -6,6 +6,7 @@ the service the same way: `T2M_MAX_QUEUE=4 t2m serve` and `create_app(Settings(m
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 from typing import Annotated
 
 from pydantic import AliasChoices, Field, SecretStr, field_validator
@@ -44,6 +45,9 @@ class Settings(BaseSettings):
         default_factory=list, description="Allowed CORS origins, comma-separated in the env ('*' = any).")
     retry_after_s: int = Field(1, ge=1, description="Retry-After seconds sent with 429 and 503 answers.")
     verify_hashes: bool = Field(True, description="Check every bundle file's sha256 at load (slower start).")
+    unknown_text: Literal["warn", "reject"] = Field(
+        "warn", description="A sentence far from every training caption of the model (bundles with a caption index): "
+                            "'warn' answers 200 with a warning naming the segment, 'reject' answers 422 naming it.")
 
     @field_validator("cors_origins", mode="before")
     @classmethod

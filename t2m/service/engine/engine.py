@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from t2m.bundle import CaptionIndex
 from t2m.decoding.gpt import SamplingJob, sample_codes
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
@@ -37,7 +38,11 @@ log = logging.getLogger(__name__)
 class OnnxEngine:
     """Generates motions from a bundle with onnxruntime; thread-safe (sessions are, and no state is kept per call)."""
 
-    def __init__(self, bundle: Bundle) -> None:
+    def __init__(self, bundle: Bundle, unknown_text: str = "warn") -> None:
+        """`unknown_text`: "warn" (a warning in the answer) or "reject" (a 422 naming the segment) for a sentence far
+        from every training caption; only bundles with a caption index can tell."""
+        if unknown_text not in ("warn", "reject"):
+            raise ValueError(f"unknown_text must be 'warn' or 'reject', got {unknown_text!r}")
         manifest = bundle.manifest
         self.bundle = bundle
         self.skeleton = get_skeleton(manifest.skeleton)
@@ -49,6 +54,10 @@ class OnnxEngine:
         self.step = OnnxGptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
                             bundle.gpt_has_length_input)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
+        self.unknown_text = unknown_text
+        info = manifest.caption_index
+        self.caption_index = None if info is None else CaptionIndex.load(bundle.path / info.file, manifest.text_dim)
+        self.unknown_threshold = None if info is None else info.threshold
         raw = manifest.raw
         self.limits = ModelLimits(
             name=manifest.name, version=manifest.version, fps=manifest.fps,
@@ -57,14 +66,42 @@ class OnnxEngine:
             unconditional_branch=manifest.unconditional_branch, length_conditioning=manifest.length_conditioning,
             skeleton=manifest.skeleton, joint_names=tuple(self.skeleton.joint_names),
             parents=tuple(int(p) for p in self.skeleton.parents),
-            details={key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
-                     if key in raw})
+            details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
+                        if key in raw}, "unknown_text": self._unknown_text_details()})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
-             inter_op_threads: int = 1) -> OnnxEngine:
+             inter_op_threads: int = 1, unknown_text: str = "warn") -> OnnxEngine:
         return cls(load_bundle(path, check_hashes=check_hashes, intra_op_threads=intra_op_threads,
-                               inter_op_threads=inter_op_threads))
+                               inter_op_threads=inter_op_threads), unknown_text=unknown_text)
+
+    def _unknown_text_details(self) -> dict:
+        """What /health says about detecting sentences the model was not trained on."""
+        if self.caption_index is None:
+            return {"detection": "off", "reason": "the bundle carries no index of its training captions (e.g. an "
+                                                  "imported release): sentences far from the training data are "
+                                                  "not detected"}
+        return {"detection": self.unknown_text, "captions": len(self.caption_index.captions),
+                "threshold": self.unknown_threshold}
+
+    def unknown_text_warnings(self, texts: Sequence[str], conds: np.ndarray) -> list[str]:
+        """One warning per segment whose text feature is far from every training caption (none without an index);
+        with unknown_text="reject" the first such segment raises a RequestLimitError naming it instead."""
+        if self.caption_index is None or self.unknown_threshold is None:
+            return []
+        warnings = []
+        for index, (text, neighbours) in enumerate(zip(texts, self.caption_index.nearest(conds, k=3))):
+            best = neighbours[0].similarity
+            if best >= self.unknown_threshold:
+                continue
+            nearest = "; ".join(f"{n.caption!r} {n.similarity:.2f}" for n in neighbours)
+            message = (f"segments.{index}.text: {text!r} is far from everything model {self.limits.name!r} was "
+                       f"trained on (best similarity {best:.2f} < {self.unknown_threshold:.2f}; nearest: {nearest}); "
+                       "the motion may not follow it")
+            if self.unknown_text == "reject":
+                raise RequestLimitError(message)
+            warnings.append(message)
+        return warnings
 
     def generate(self, request: GenerationRequest) -> Motion:
         """One request on its own; raises what the batch would have returned in its place."""
@@ -79,25 +116,30 @@ class OnnxEngine:
         results: list[Motion | BaseException | None] = [None] * len(requests)
         jobs: list[SamplingJob] = []
         owners: list[int] = []
+        notes: list[list[str]] = []
         for index, request in enumerate(requests):
             if request.cancelled:
                 results[index] = GenerationCancelled("request cancelled before it started")
                 continue
             try:
-                jobs.append(self._job(request))
+                job = self._job(request)
+                notes.append(self.unknown_text_warnings([s.text for s in request.segments], job.conds))
+                jobs.append(job)
                 owners.append(index)
+            except RequestLimitError as error:
+                results[index] = error
             except Exception as error:  # one bad request must not sink the batch
                 log.exception("text encoding failed")
                 results[index] = error
         if jobs:
             codes = sample_codes(self.step, jobs, self.limits.max_tokens, self.bundle.manifest.end_id, on_step)
-            for index, segment_codes in zip(owners, codes):
+            for index, segment_codes, warnings in zip(owners, codes, notes):
                 request = requests[index]
                 if segment_codes is None:
                     results[index] = GenerationCancelled("request cancelled during generation")
                     continue
                 try:
-                    results[index] = self._motion(request, segment_codes)
+                    results[index] = self._motion(request, segment_codes, warnings)
                 except Exception as error:
                     log.exception("decoding failed")
                     results[index] = error
@@ -119,7 +161,7 @@ class OnnxEngine:
                            temperature=request.temperature, top_k=request.top_k,
                            rng=np.random.default_rng(request.seed), cancelled=lambda: request.cancelled)
 
-    def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray]) -> Motion:
+    def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray], warnings: list[str]) -> Motion:
         per_token = self.limits.frames_per_token
         spans, start = [], 0
         for segment, codes in zip(request.segments, segment_codes):
@@ -130,7 +172,7 @@ class OnnxEngine:
             raise RuntimeError(f"decoder.onnx returned {len(features)} frames for {start // per_token} tokens, "
                                f"expected {start} (frames_per_token {per_token})")
         joints = np.asarray(features_to_joints(features, self.skeleton), dtype=np.float32)
-        warnings = []
+        warnings = list(warnings)
         if request.guidance != 1.0 and not self.limits.unconditional_branch:
             warnings.append(f"guidance {request.guidance:g} requested but model {self.limits.name!r} was trained "
                             "without an unconditional branch; the null-condition logits are untrained")

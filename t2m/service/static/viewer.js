@@ -37,6 +37,7 @@
     apiKey: $('api-key'),
     generate: $('generate'),
     message: $('message'),
+    warnings: $('warnings'),
     downloadBvh: $('download-bvh'),
     downloadGlb: $('download-glb'),
     modelInfo: $('model-info'),
@@ -425,6 +426,16 @@
     ui.message.className = `message ${kind}`;
   }
 
+  /** The model's warnings for the motion on screen (e.g. a sentence far from everything it was trained on). */
+  function showWarnings(warnings) {
+    ui.warnings.replaceChildren(...(warnings || []).map((text) => {
+      const item = document.createElement('li');
+      item.textContent = text;
+      return item;
+    }));
+    ui.warnings.hidden = !(warnings && warnings.length);
+  }
+
   /** A readable sentence for a failed response: names the fields (422), the wait (429), or the status. */
   async function describeFailure(response) {
     let body = null;
@@ -473,6 +484,7 @@
     ui.generate.disabled = true;
     document.body.dataset.state = 'loading';
     showMessage('Generating…');
+    showWarnings([]);
     const started = performance.now();
     try {
       const response = await postGenerate(body);
@@ -483,6 +495,7 @@
       }
       const motion = await response.json();
       loadMotion(motion, { ...body, seed: motion.seed });
+      showWarnings(motion.warnings);
       const seconds = ((performance.now() - started) / 1000).toFixed(2);
       showMessage(`${motion.frames.length} frames (${(motion.frames.length / motion.fps).toFixed(1)} s of motion) ` +
         `in ${seconds} s · seed ${motion.seed}`, 'ok');
