@@ -6,6 +6,8 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from t2m import __version__
+
 # Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
 # `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code. Only the module of the
 # command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch.
@@ -40,6 +42,7 @@ def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
 
     `selected=None` registers every command (used by tests and documentation tools)."""
     parser = argparse.ArgumentParser(prog="t2m", description="Text-to-motion: data, training, export and serving.")
+    parser.add_argument("--version", action="version", version=f"t2m-service {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
         if selected is None or name == selected:

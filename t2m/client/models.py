@@ -105,6 +105,7 @@ class Health:
     status: str                       # "ok" | "loading" | "error"
     model: dict[str, Any] | None = None
     detail: str | None = None
+    service_version: str | None = None
 
     @property
     def ready(self) -> bool:

@@ -23,8 +23,15 @@ from t2m.bundle import CAPTION_INDEX_FILE, CaptionIndex, read_manifest
 from t2m.export.bundle import write_bundle
 from t2m.service.engine.text import TextEncoder, load_tokenizer
 
-__all__ = ["Rates", "training_captions", "encode_with_bundle", "choose_threshold", "rates", "add_caption_index",
-           "DEFAULT_PHRASINGS"]
+__all__ = [
+    "DEFAULT_PHRASINGS",
+    "Rates",
+    "add_caption_index",
+    "choose_threshold",
+    "encode_with_bundle",
+    "rates",
+    "training_captions",
+]
 
 log = logging.getLogger(__name__)
 DEFAULT_PHRASINGS = Path(__file__).resolve().parent / "phrasings" / "bandai_known_unknown.json"

@@ -22,6 +22,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
+from t2m import __version__
 from t2m.service.batching import MicroBatcher
 from t2m.service.dependencies import ServiceState
 from t2m.service.engine.types import Engine
@@ -82,7 +83,7 @@ def create_app(settings: Settings | None = None, *,
             if state.batcher is not None:
                 state.batcher.close()
 
-    app = FastAPI(title="t2m-service", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="t2m-service", version=__version__, lifespan=lifespan,
                   description="Text to 3D human motion: a stream of sentences with durations becomes one continuous "
                               "motion (22-joint SMPL skeleton, 20 fps) as JSON joints, BVH or glTF binary.")
     app.state.service = state

@@ -10,6 +10,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstraints, field_validator
 
+from t2m import __version__
 from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
 
 __all__ = [
@@ -142,6 +143,7 @@ class ModelDetails(ModelInfo):
 
 class HealthResponse(BaseModel):
     status: Literal["ok", "loading", "error"]
+    service_version: str = Field(__version__, description="t2m-service version (the package's and the API's).")
     model: ModelDetails | None = None
     detail: str | None = None
 

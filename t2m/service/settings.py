@@ -6,8 +6,7 @@ the service the same way: `T2M_MAX_QUEUE=4 t2m serve` and `create_app(Settings(m
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import AliasChoices, Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict

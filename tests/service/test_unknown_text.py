@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from t2m.bundle import CaptionIndex, BundleError
+from t2m.bundle import BundleError, CaptionIndex
 from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "model"))
