@@ -11,7 +11,8 @@ The server's resident memory is sampled throughout (psutil if installed, else /p
 Only loopback URLs are accepted, and clients, seconds and requests are bounded: this is a benchmark, not a weapon.
 
     python benchmarks/load_test.py --url http://127.0.0.1:8000 --server-pid 1234 --clients 4 --seconds 10 --overload
-    python benchmarks/load_test.py --model t2m/bundles/default --clients 4 --seconds 10 --overload   # starts its own server
+    # starts its own server:
+    python benchmarks/load_test.py --model t2m/bundles/default --clients 4 --seconds 10 --overload
 """
 from __future__ import annotations
 
@@ -263,8 +264,8 @@ def format_report(report: LoadReport, url: str) -> str:
     if samples:
         mb = report.memory.mb()
         picks = sorted(set(np.linspace(0, len(samples) - 1, num=min(len(samples), 8)).round().astype(int)))
-        lines += ["", "Server RSS (MB) over time: start %.1f, peak %.1f, end %.1f (end - start %+.1f)"
-                  % (mb[0], max(mb), mb[-1], mb[-1] - mb[0]), "",
+        lines += ["", f"Server RSS (MB) over time: start {mb[0]:.1f}, peak {max(mb):.1f}, end {mb[-1]:.1f} "
+                      f"(end - start {mb[-1] - mb[0]:+.1f})", "",
                   "| t (s) | " + " | ".join(f"{samples[i][0]:.0f}" for i in picks) + " |",
                   "| --- | " + " | ".join("---:" for _ in picks) + " |",
                   "| RSS MB | " + " | ".join(f"{mb[i]:.0f}" for i in picks) + " |"]

@@ -1,9 +1,10 @@
-"""Does the model follow the text? Kinematic probes (t2m.model.evaluation.probes) run through a bundle's onnxruntime engine.
+"""Does the model follow the text? Kinematic probes (t2m.model.evaluation.probes) run on a bundle's onnxruntime engine.
 
 Every probe x phrasing x seed is generated as a `--duration` s motion (3 s by default) and measured; a paired probe
-(run vs walk) generates its reference sentence with the same seed. The three-sentence stream of t2m.model.evaluation.probes.STREAM
-is generated per seed too: each segment is probed against its own sentence and the pelvis velocity jump at each
-join is compared with the changes inside the segments. Prints markdown tables; `--json-out` keeps every trial.
+(run vs walk) generates its reference sentence with the same seed. The three-sentence stream of
+t2m.model.evaluation.probes.STREAM is generated per seed too: each segment is probed against its own sentence and the
+pelvis velocity jump at each join is compared with the changes inside the segments. Prints markdown tables;
+`--json-out` keeps every trial.
 
     python benchmarks/probes.py                                  # t2m/bundles/default, 5 seeds, the model's guidance
     python benchmarks/probes.py --bundle DIR --seeds 5 --guidance 3 --json-out artifacts/probes.json
@@ -170,7 +171,8 @@ def run_stream(engine: OnnxEngine, seeds: Sequence[int], guidance: float,
         changes.append(list(joins.join_changes))
         medians.append(joins.within_median)
         p95s.append(joins.within_p95)
-    return StreamSummary([tuple(s) for s in sentences], {k: float(np.mean(v)) for k, v in passes.items()},
+    return StreamSummary([(text, seconds, probe) for text, seconds, probe in sentences],
+                         {k: float(np.mean(v)) for k, v in passes.items()},
                          ratios, p95_ratios, changes, medians, p95s)
 
 
@@ -262,7 +264,7 @@ def calibrate_on_clips(dataset_dir: str | Path, per_content: int = 20, seconds: 
     for path in files:
         by_content.setdefault(path.stem.split("_")[1], []).append(path)
     rng = random.Random(seed)
-    frames = int(round(seconds * 20))
+    frames = round(seconds * 20)
     joints: dict[str, list[np.ndarray]] = {}
     for content in tqdm(CALIBRATION_CONTENTS, desc="clips", unit="content", disable=not progress):
         chosen = rng.sample(by_content.get(content, []), min(per_content, len(by_content.get(content, []))))

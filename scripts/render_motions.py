@@ -1,9 +1,9 @@
 """Pictures of generated motions for the README and the model card: a contact sheet and an animated stream.
 
 docs/images/contact_sheet.png: one row per motion (a probe sentence, 3 s, or the three-sentence stream of
-t2m.model.evaluation.probes.STREAM), each row a strip of stick-figure frames seen from the front-left of where the motion starts
-(left bones blue, right bones red), with the pelvis path drawn on a 0.5 m floor grid and the probe's measurement in
-the title. docs/images/stream.gif: the stream animated, the current sentence written above the figure.
+t2m.model.evaluation.probes.STREAM), each row a strip of stick-figure frames seen from the front-left of where the
+motion starts (left bones blue, right bones red), with the pelvis path drawn on a 0.5 m floor grid and the probe's
+measurement in the title. docs/images/stream.gif: the stream animated, the current sentence written above the figure.
 
     python scripts/render_motions.py                             # t2m/bundles/default, seed 0
     python scripts/render_motions.py --bundle DIR --seed 3 --guidance 3 --out docs/images
@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,9 @@ if __package__ in (None, ""):  # run as a script: make the repo's packages impor
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from t2m.model.evaluation.probes import STREAM, initial_facing, path_length, probe_by_name
 from t2m.motion.skeleton import SMPL22
+
+if TYPE_CHECKING:
+    from t2m.service.engine.types import Motion
 
 __all__ = ["SINGLE_MOTIONS", "Camera", "SheetRow", "contact_sheet", "main", "stream_gif"]
 
@@ -147,7 +151,7 @@ def contact_sheet(rows: Sequence[SheetRow], path: str | Path, frames_per_row: in
     columns = max(frames_per_row + (len(row.joins) and 2) for row in rows)
     header = 0.3
     figure = plt.figure(figsize=(1.5 * columns, 2.3 * len(rows) + header), dpi=dpi)
-    subfigures = figure.subfigures(len(rows) + 1, 1, height_ratios=[header] + [2.3] * len(rows))
+    subfigures = figure.subfigures(len(rows) + 1, 1, squeeze=False, height_ratios=[header] + [2.3] * len(rows))[:, 0]
     subfigures[0].text(0.01, 0.5, "Blue: the body's left side, red: its right side. Grey: the pelvis path on a "
                        "0.5 m floor grid. Seen from the front-left of where each motion starts.",
                        fontsize=10, va="center", color="#444444")
@@ -242,7 +246,7 @@ def _title(text: str, seconds: float, seed: int, probe: str, joints: np.ndarray)
     return f'"{text}"  ({seconds:g} s, seed {seed}){measured}'
 
 
-def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) -> tuple[list[SheetRow], object]:
+def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) -> tuple[list[SheetRow], Motion]:
     """Generate the single-sentence motions and the stream; the sheet's rows and the stream's Motion."""
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
 

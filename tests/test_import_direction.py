@@ -80,7 +80,9 @@ def test_the_checker_sees_nested_and_relative_imports(tmp_path, monkeypatch):
     """The rule must be able to fail: a nested torch import and a relative import are both reported."""
     fake = tmp_path / "service" / "engine"
     fake.mkdir(parents=True)
-    (fake / "bad.py").write_text("def f():\n    import torch\n    from t2m.model.networks.gpt import GPT\nfrom . import x\n")
+    (fake / "bad.py").write_text(
+        "def f():\n    import torch\n    from t2m.model.networks.gpt import GPT\nfrom . import x\n"
+    )
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert violations("service") == [
         "service/engine/bad.py:2 imports torch",

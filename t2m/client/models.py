@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Union
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -31,7 +31,7 @@ class Segment:
         return {"text": self.text, "duration": self.duration}
 
 
-SegmentsLike = Union[str, Segment, Sequence[Segment | tuple[str, float | None] | Mapping[str, Any] | str]]
+SegmentsLike: TypeAlias = str | Segment | Sequence[Segment | tuple[str, float | None] | Mapping[str, Any] | str]
 
 
 def to_segments(segments: SegmentsLike) -> list[Segment]:

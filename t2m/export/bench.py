@@ -63,7 +63,9 @@ class BenchRow:
 
 
 def default_sizes() -> tuple[GPTConfig, VQConfig, str]:
-    """The default bundle's GPT sizes when t2m/bundles/default has one (VQ sizes are not in a manifest), else defaults."""
+    """The default bundle's GPT sizes when t2m/bundles/default has one, else defaults.
+
+    VQ sizes are not in a manifest: the VQ gets VQConfig's defaults (with the bundle's codebook size)."""
     if DEFAULT_MANIFEST.is_file():
         manifest = json.loads(DEFAULT_MANIFEST.read_text())
         g = manifest["gpt"]
@@ -101,7 +103,8 @@ def case_key(case: BenchCase, gpt: MotionGPT, vq: MotionVQVAE) -> str:
     from t2m.export.graph_export import OPSET
 
     digest = hashlib.sha256()
-    digest.update(json.dumps([case.gpt.to_dict(), case.vq.to_dict(), torch.__version__, OPSET], sort_keys=True).encode())
+    sizes = [case.gpt.to_dict(), case.vq.to_dict(), torch.__version__, OPSET]
+    digest.update(json.dumps(sizes, sort_keys=True).encode())
     for tensor in [*gpt.state_dict().values(), *vq.state_dict().values()]:
         digest.update(tensor.detach().flatten()[:256].numpy().tobytes())  # cheap, and changes with any re-init
     return f"{case.label}-{digest.hexdigest()[:16]}"

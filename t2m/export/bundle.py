@@ -38,7 +38,9 @@ def _old_bundle_files(out_dir: Path) -> list[str] | None:
     try:
         return list(json.loads(manifest.read_text(encoding="utf-8")).get("files", {}))
     except (json.JSONDecodeError, AttributeError) as error:
-        raise ValueError(f"{manifest}: an earlier bundle's manifest is unreadable ({error}); remove it first") from error
+        raise ValueError(
+            f"{manifest}: an earlier bundle's manifest is unreadable ({error}); remove it first"
+        ) from error
 
 
 def check_out_dir(out_dir: str | Path) -> Path:
@@ -98,6 +100,7 @@ def render_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
     text = manifest["text_encoder"]
     data = manifest["training_data"]
     quant = manifest.get("quantization") or {}
+    max_seconds = manifest["max_tokens"] * manifest["frames_per_token"] / manifest["fps"]
     lines = [
         f"# {manifest['name']} {manifest['version']}",
         "",
@@ -108,14 +111,15 @@ def render_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
         f"| motion | {manifest['skeleton']} ({manifest['num_joints']} joints), {manifest['feature_dim']}-dim features,"
         f" {manifest['fps']} fps, {manifest['frames_per_token']} frames per code |",
         f"| codes | codebook {manifest['codebook_size']}, residual layers {manifest['residual_layers']},"
-        f" at most {manifest['max_tokens']} codes ({manifest['max_tokens'] * manifest['frames_per_token'] / manifest['fps']:.1f} s) |",
+        f" at most {manifest['max_tokens']} codes ({max_seconds:.1f} s) |",
         f"| GPT | {gpt['n_layer']} layers, {gpt['n_head']} heads x {gpt['head_dim']}, block {gpt['block_size']},"
         f" length conditioning {'yes' if gpt['length_conditioning'] else 'no'} |",
         f"| guidance | trained unconditional branch: {'yes' if gpt['unconditional_branch'] else 'no'};"
         f" default scale {gpt['default_guidance']} |",
         f"| text encoder | {text['kind']} ({text['dim']}-d, {text['pooling']} pooling,"
         f" {'L2-normalised' if text['normalize'] else 'not normalised'}, max {text['max_length']} tokens) |",
-        f"| quantisation | text encoder: {quant.get('text_encoder') or 'float32'}; GPT step: {quant.get('gpt_step') or 'float32'} |",
+        f"| quantisation | text encoder: {quant.get('text_encoder') or 'float32'};"
+        f" GPT step: {quant.get('gpt_step') or 'float32'} |",
         f"| training data | {data['name']} ({data['license']}) |",
         f"| licence of the weights | {manifest['license']} |",
         "",
@@ -127,7 +131,8 @@ def render_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
             "## Guidance",
             "",
             "This GPT was trained without condition dropout: it has no trained unconditional branch. Classifier-free",
-            "guidance with a zero null condition is an untested assumption for it; use guidance 1.0 (the default here).",
+            "guidance with a zero null condition is an untested assumption for it; "
+            "use guidance 1.0 (the default here).",
             "",
         ]
     if notes.strip():

@@ -108,8 +108,9 @@ def _card_section(threshold: float, count: int, report: dict[str, Any]) -> str:
         r = report[name]
         lines.append(f"| {name} | {r['known']} | {r['unknown']} | {r['false_warnings']} "
                      f"({r['false_warning_rate']:.2f}) | {r['missed_warnings']} ({r['missed_warning_rate']:.2f}) |")
-    lines += ["", f"Missed on the evaluation set: {', '.join(repr(s) for s in report['evaluation']['missed']) or 'none'}."
-              f" Falsely warned: {', '.join(repr(s) for s in report['evaluation']['false']) or 'none'}.",
+    missed = ", ".join(repr(s) for s in report["evaluation"]["missed"]) or "none"
+    falsely_warned = ", ".join(repr(s) for s in report["evaluation"]["false"]) or "none"
+    lines += ["", f"Missed on the evaluation set: {missed}. Falsely warned: {falsely_warned}.",
               "A similarity is a property of the text encoder, not of the motion: a sentence near a caption can still "
               "be generated badly (see the probes), and the index says nothing about style words.", CARD_END]
     return "\n".join(lines)

@@ -16,8 +16,12 @@ import io
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:
+    import onnx
 
 OPSET = 17
 USE_DYNAMO = False
@@ -52,11 +56,14 @@ def export_graph(
                 module, args, input_names=list(input_names), output_names=list(output_names),
                 dynamic_shapes=shapes, dynamo=True, opset_version=max(OPSET, 18),
             )
+            assert program is not None  # dynamo=True always returns the program
             model = program.model_proto
         else:
             buffer = io.BytesIO()  # in memory: the graph is pinned, checked and written once (1 GB for T2M-GPT)
+            # torch annotates f as a path, but the TorchScript exporter writes to file-like objects too
             torch.onnx.export(
-                module, args, buffer, input_names=list(input_names), output_names=list(output_names),
+                module, args, buffer,  # type: ignore[arg-type]
+                input_names=list(input_names), output_names=list(output_names),
                 dynamic_axes={k: dict(v) for k, v in dynamic_axes.items()}, opset_version=OPSET, dynamo=False,
                 do_constant_folding=True,
             )
@@ -69,7 +76,7 @@ def export_graph(
 
 
 def _pin_static_dims(
-    model: onnx.ModelProto,  # noqa: F821
+    model: onnx.ModelProto,
     module: torch.nn.Module,
     args: tuple[torch.Tensor, ...],
     input_names: Sequence[str],

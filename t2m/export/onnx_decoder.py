@@ -8,18 +8,25 @@ layer's codes can pass -1 for the others).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import torch
 from torch import nn
 
 from t2m.export.graph_export import export_graph
+from t2m.model.networks.quantizers import EMAResetQuantizer, ResidualQuantizer
 from t2m.model.networks.vqvae import MotionVQVAE
 
 
 class DecoderGraph(nn.Module):
     """Wraps a MotionVQVAE's decoding path with the de-normalisation, for export."""
+
+    # buffers: the training data's statistics
+    mean: torch.Tensor
+    std: torch.Tensor
 
     def __init__(self, vq: MotionVQVAE, mean: np.ndarray, std: np.ndarray) -> None:
         super().__init__()
@@ -28,22 +35,26 @@ class DecoderGraph(nn.Module):
         std_t = torch.as_tensor(np.asarray(std, dtype=np.float32))
         if mean_t.shape != (feat_dim,) or std_t.shape != (feat_dim,):
             raise ValueError(
-                f"mean/std must be [{feat_dim}] to match the VQ's feat_dim, got {list(mean_t.shape)}/{list(std_t.shape)}"
+                f"mean/std must be [{feat_dim}] to match the VQ's feat_dim, "
+                f"got {list(mean_t.shape)}/{list(std_t.shape)}"
             )
         self.vq = vq
-        self.residual_layers = vq.config.residual_layers if vq.config.quantizer == "residual" else 0
         self.register_buffer("mean", mean_t)
         self.register_buffer("std", std_t)
 
     def latent(self, codes: torch.Tensor) -> torch.Tensor:
-        if not self.residual_layers:
-            return self.vq.quantizer.codes_to_latent(codes)
-        latent = None
-        for index, layer in enumerate(self.vq.quantizer.layers):
+        quantizer = self.vq.quantizer
+        if not isinstance(quantizer, ResidualQuantizer):  # ema_reset / plain: one code per step
+            return quantizer.codes_to_latent(codes)
+        # the ModuleList's items are EMA-reset quantisers (its type only says Module)
+        layers = cast(Sequence[EMAResetQuantizer], quantizer.layers)
+        latent: torch.Tensor | None = None
+        for index, layer in enumerate(layers):
             layer_codes = codes[..., index]
             used = (layer_codes >= 0).unsqueeze(-1).to(torch.float32)
             part = layer.codes_to_latent(layer_codes.clamp(min=0)) * used
             latent = part if latent is None else latent + part
+        assert latent is not None, "a residual quantiser has at least one layer"
         return latent
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:

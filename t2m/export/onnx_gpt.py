@@ -67,7 +67,7 @@ def export_gpt_step(gpt: MotionGPT, path: str | Path) -> Path:
     gpt = gpt.eval()
     graph = GptStepGraph(gpt) if gpt.config.length_conditioning else GptStepGraphNoLength(gpt)
     inputs = example_step_inputs(gpt)
-    dynamic = {name: {0: "batch"} for name in ("cond", "token", "length") if name in inputs}
+    dynamic: dict[str, dict[int, str]] = {name: {0: "batch"} for name in ("cond", "token", "length") if name in inputs}
     dynamic["past_kv"] = {2: "batch", 4: "past"}
     dynamic["logits"] = {0: "batch"}
     dynamic["present_kv"] = {2: "batch", 4: "past_plus_1"}

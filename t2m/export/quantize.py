@@ -28,8 +28,9 @@ def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) 
 
     ``reduce_range`` keeps weights in 7 bits. On CPUs without VNNI, onnxruntime multiplies uint8 activations by int8
     weights with pairwise int16 sums (VPMADDUBSW) that saturate for 8-bit weights: emulating that arithmetic puts a
-    small GPT's logits 0.11 off (a CI machine saw 0.13), against 0.005 with VNNI. With 7-bit weights no sum can saturate (2 x 255 x 64 < 32767): the
-    integer results are the same on every x86 CPU and what the export measured is what the service computes.
+    small GPT's logits 0.11 off (a CI machine saw 0.13), against 0.005 with VNNI. With 7-bit weights no sum can
+    saturate (2 x 255 x 64 < 32767): the integer results are the same on every x86 CPU and what the export measured is
+    what the service computes.
     """
     from onnxruntime.quantization import QuantType, quantize_dynamic
 

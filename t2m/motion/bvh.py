@@ -362,7 +362,7 @@ def _looks_like_text(source: str) -> bool:
 def read_bvh(source: str | os.PathLike | IO[str]) -> BvhMotion:
     """Parse a BVH file given as a path, the file's text, or a text stream. Raises `BvhError` on malformed input."""
     if hasattr(source, "read"):
-        text = source.read()  # type: ignore[union-attr]
+        text = source.read()
         if isinstance(text, bytes):
             text = text.decode("utf-8-sig")
         where = getattr(source, "name", "<stream>")
@@ -455,7 +455,7 @@ def write_bvh(target: str | os.PathLike | IO[str] | None, bvh: BvhMotion, precis
     if target is None:
         return text
     if hasattr(target, "write"):
-        target.write(text)  # type: ignore[union-attr]
+        target.write(text)
     else:
         Path(target).write_text(text, encoding="utf-8")
     return text

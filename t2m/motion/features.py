@@ -25,6 +25,8 @@ The facing frame is HumanML3D's: forward = up x across, with across from the hip
 """
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 from t2m.motion.quaternion import qbetween, qinv, qmul, qrot, quat_to_cont6d
@@ -180,7 +182,7 @@ def humanml3d_ik(joints: np.ndarray, skeleton: Skeleton, smooth_sigma: float | N
     quats[:, 0] = root_quat
     for chain in skeleton.kinematic_chain:
         accumulated = root_quat
-        for parent, child in zip(chain[:-1], chain[1:]):
+        for parent, child in pairwise(chain):
             bone = joints[:, child] - joints[:, parent]
             world = qbetween(np.broadcast_to(directions[child], bone.shape), bone)
             local = qmul(qinv(accumulated), world)
@@ -197,9 +199,10 @@ def forward_kinematics(local_quats: np.ndarray, root_positions: np.ndarray, skel
     joints[:, 0] = root_positions
     for chain in skeleton.kinematic_chain:
         accumulated = local_quats[:, 0]
-        for parent, child in zip(chain[:-1], chain[1:]):
+        for parent, child in pairwise(chain):
             accumulated = qmul(accumulated, local_quats[:, child])
-            joints[:, child] = qrot(accumulated, np.broadcast_to(offsets[child], joints[:, child].shape)) + joints[:, parent]
+            offset = np.broadcast_to(offsets[child], joints[:, child].shape)
+            joints[:, child] = qrot(accumulated, offset) + joints[:, parent]
     return joints
 
 
@@ -213,7 +216,7 @@ def joints_to_features(joints: np.ndarray, skeleton: Skeleton | str = SMPL22,
     skeleton = get_skeleton(skeleton)
     positions = validate_joints(joints, skeleton, min_frames=2)
     threshold = skeleton.feet_threshold if feet_threshold is None else float(feet_threshold)
-    num_frames, num_joints = positions.shape[:2]
+    num_frames = positions.shape[0]
 
     # foot contacts: squared displacement to the next frame under the threshold
     feet = list(skeleton.foot_joints)

@@ -37,8 +37,10 @@ __all__ = ["glb_joint_positions", "joints_to_glb"]
 
 _FLOAT = pygltflib.FLOAT
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-_DTYPES = {pygltflib.FLOAT: np.float32, pygltflib.UNSIGNED_BYTE: np.uint8, pygltflib.UNSIGNED_SHORT: np.uint16,
-           pygltflib.UNSIGNED_INT: np.uint32, pygltflib.BYTE: np.int8, pygltflib.SHORT: np.int16}
+_DTYPES: dict[int, type[np.number]] = {
+    pygltflib.FLOAT: np.float32, pygltflib.UNSIGNED_BYTE: np.uint8, pygltflib.UNSIGNED_SHORT: np.uint16,
+    pygltflib.UNSIGNED_INT: np.uint32, pygltflib.BYTE: np.int8, pygltflib.SHORT: np.int16,
+}
 # Capsule radius (metres) of the bone that ends at each SMPL joint; a rough adult build, only for looks.
 _BONE_RADIUS = {
     "left_hip": 0.07, "right_hip": 0.07, "spine1": 0.10, "spine2": 0.11, "spine3": 0.12, "neck": 0.055,
@@ -228,7 +230,8 @@ def _parse_glb(glb: bytes) -> tuple[dict, bytes]:
 def _read_accessor(document: dict, blob: bytes, index: int) -> np.ndarray:
     accessor = document["accessors"][index]
     view = document["bufferViews"][accessor["bufferView"]]
-    dtype = np.dtype(_DTYPES[accessor["componentType"]])
+    scalar = _DTYPES[accessor["componentType"]]
+    dtype = np.dtype(scalar)
     width = _COMPONENTS[accessor["type"]]
     count = accessor["count"]
     stride = view.get("byteStride") or dtype.itemsize * width
@@ -239,8 +242,8 @@ def _read_accessor(document: dict, blob: bytes, index: int) -> np.ndarray:
     raw = np.frombuffer(blob, dtype=np.uint8, count=span, offset=start)
     rows = np.lib.stride_tricks.as_strided(raw, shape=(count, dtype.itemsize * width), strides=(stride, 1))
     values = np.ascontiguousarray(rows).view(dtype).reshape(count, width).astype(np.float64)
-    if accessor.get("normalized") and np.issubdtype(dtype, np.integer):
-        values /= np.iinfo(dtype).max
+    if accessor.get("normalized") and issubclass(scalar, np.integer):
+        values /= np.iinfo(scalar).max
     return values
 
 

@@ -112,12 +112,16 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     )
     best = np.argmax(squares, axis=-1)
     root = np.sqrt(np.maximum(np.take_along_axis(squares, best[..., None], -1)[..., 0], _EPS))  # = 4|c| / 2 = 2|c|
+    # the off-diagonal differences are 4w*(x, y, z), the sums 4xy, 4xz, 4yz
+    wx4, wy4, wz4 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    xy4, xz4, yz4 = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]
+    rr = root * root
     candidates = np.stack(
         [
-            np.stack([root * root, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-            np.stack([m[..., 2, 1] - m[..., 1, 2], root * root, m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0]], -1),
-            np.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1], root * root, m[..., 2, 1] + m[..., 1, 2]], -1),
-            np.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2], root * root], -1),
+            np.stack([rr, wx4, wy4, wz4], -1),
+            np.stack([wx4, rr, xy4, xz4], -1),
+            np.stack([wy4, xy4, rr, yz4], -1),
+            np.stack([wz4, xz4, yz4, rr], -1),
         ],
         axis=-2,
     )

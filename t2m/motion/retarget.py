@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Union
+from typing import TypeAlias
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from t2m.motion.transforms import resample
 __all__ = ["BANDAI_NAMCO", "JointMap", "bvh_to_smpl22", "map_positions"]
 
 # One entry per target joint: a source joint name, or {source name: weight} for a synthesised joint.
-TargetSpec = Union[str, Mapping[str, float]]
+TargetSpec: TypeAlias = str | Mapping[str, float]
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,8 @@ class JointMap:
     @classmethod
     def from_targets(cls, name: str, targets: Sequence[tuple[str, TargetSpec]], units_to_metres: float) -> JointMap:
         """Build from [(target joint name, source name | {source: weight}), ...] in target joint order."""
-        names, sources = [], []
+        names: list[str] = []
+        sources: list[tuple[tuple[str, float], ...]] = []
         for target, spec in targets:
             names.append(target)
             if isinstance(spec, str):

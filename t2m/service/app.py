@@ -129,8 +129,9 @@ def _route_paths(app: FastAPI) -> set[str]:
     """The path templates the app serves (metric labels); included routers are looked into."""
     paths: set[str] = set()
     for route in app.routes:
-        if getattr(route, "path", None):
-            paths.add(route.path)
+        path = getattr(route, "path", None)
+        if path:
+            paths.add(path)
         included = getattr(route, "original_router", None)
         paths.update(getattr(sub, "path", "") for sub in getattr(included, "routes", []))
     return paths - {""}

@@ -67,7 +67,9 @@ class _Strict(BaseModel):
 class Segment(_Strict):
     """One sentence and how long its motion lasts."""
 
-    text: Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS, pattern=r"\S")] = Field(
+    text: Annotated[
+        str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS, pattern=r"\S"),
+    ] = Field(
         description=f"What the person does; 1-{MAX_TEXT_CHARS} characters after trimming, not only white space.",
         examples=["a person walks forward"])
     duration: float | None = Field(

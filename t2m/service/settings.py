@@ -29,7 +29,8 @@ class Settings(BaseSettings):
     bundle_path: Path = Field(
         default_factory=default_bundle_path,
         validation_alias=AliasChoices("bundle_path", "T2M_BUNDLE_PATH", "T2M_MODEL_DIR"),
-        description="Model bundle directory (env T2M_BUNDLE_PATH or T2M_MODEL_DIR); default: the embedded t2m/bundles/default.",
+        description="Model bundle directory (env T2M_BUNDLE_PATH or T2M_MODEL_DIR); "
+                    "default: the embedded t2m/bundles/default.",
     )
     intra_op_threads: int = Field(0, ge=0, description="onnxruntime intra-op threads per session (0 = ORT's choice).")
     inter_op_threads: int = Field(1, ge=0, description="onnxruntime inter-op threads per session.")

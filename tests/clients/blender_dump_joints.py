@@ -49,7 +49,7 @@ armature = armatures[0]
 action = armature.animation_data.action if armature.animation_data else None
 if action is None:
     raise SystemExit("the imported armature has no action")
-start, end = (int(round(v)) for v in action.frame_range)
+start, end = (round(v) for v in action.frame_range)
 frames = list(range(start, end + 1))
 bones = {bone.name: [] for bone in armature.pose.bones}
 for frame in frames:

@@ -7,6 +7,7 @@ take screenshots, with nothing downloaded at test time.
 from __future__ import annotations
 
 import base64
+import contextlib
 import itertools
 import json
 import shutil
@@ -92,10 +93,11 @@ class HeadlessChromium:
         self.user_data_dir = Path(user_data_dir)
         self.download_dir = Path(download_dir)
         self.download_dir.mkdir(parents=True, exist_ok=True)
-        self._log = open(self.user_data_dir.parent / "chromium.log", "wb")
-        self.process = subprocess.Popen(
-            [binary, *CHROMIUM_FLAGS, f"--user-data-dir={self.user_data_dir}", f"--window-size={width},{height}",
-             "about:blank"], stdout=self._log, stderr=subprocess.STDOUT)
+        # the child keeps its own copy of the log's file descriptor: ours can be closed once it has started
+        with open(self.user_data_dir.parent / "chromium.log", "wb") as log:
+            self.process = subprocess.Popen(
+                [binary, *CHROMIUM_FLAGS, f"--user-data-dir={self.user_data_dir}", f"--window-size={width},{height}",
+                 "about:blank"], stdout=log, stderr=subprocess.STDOUT)
         port, browser_path = self._wait_for_devtools()
         self.browser = CdpConnection(f"ws://127.0.0.1:{port}{browser_path}")
         self.browser.send("Browser.setDownloadBehavior",
@@ -221,14 +223,11 @@ class HeadlessChromium:
     def close(self) -> None:
         for connection in (getattr(self, "page", None), getattr(self, "browser", None)):
             if connection is not None:
-                try:
+                with contextlib.suppress(Exception):  # the browser may already be gone; closing is best effort
                     connection.close()
-                except Exception:  # the browser may already be gone; closing is best effort
-                    pass
         self.process.terminate()
         try:
             self.process.wait(timeout=10)
         except subprocess.TimeoutExpired:
             self.process.kill()
             self.process.wait(timeout=5)
-        self._log.close()

@@ -71,7 +71,7 @@ def _right_bone_pixels(pixels: np.ndarray) -> int:
     return int((np.abs(pixels - RIGHT_BONE_RGB).max(axis=-1) < 24).sum())
 
 
-def test_generate_animates_and_downloads(server, browser):
+def test_generate_animates_and_downloads(server, browser, bundle_dir):
     browser.navigate(server.url + "/")
     browser.wait_for("document.querySelectorAll('.segment-row').length === 2")
     before = _pixels(browser.canvas_png("#view"))
@@ -94,6 +94,13 @@ def test_generate_animates_and_downloads(server, browser):
     frames = int(browser.evaluate("document.body.dataset.frames"))
     assert frames == 60 + 40  # round(duration * 20 / 4) * 4 frames per segment: 3 s and 2 s
     assert "seed 123" in message
+    # The model's warnings are shown: the default model has a caption index and never saw anyone jump.
+    warnings = browser.evaluate("Array.from(document.querySelectorAll('#warnings li')).map(li => li.textContent)")
+    if (bundle_dir / "caption_index.npz").exists():
+        assert browser.evaluate("document.getElementById('warnings').hidden") is False
+        assert [w.split(":")[0] for w in warnings] == ["segments.1.text"], warnings
+    else:
+        assert warnings == []
     strip = browser.evaluate("Array.from(document.querySelectorAll('#segment-strip span')).map(s => s.textContent)")
     assert strip[:2] == ["a person walks forward slowly", "a person jumps"]
 

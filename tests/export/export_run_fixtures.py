@@ -1,4 +1,5 @@
-"""Tiny training runs laid out as model/ writes them (t2m.model.training.checkpoint.save_checkpoint), for the export tests."""
+"""Tiny training runs laid out as model/ writes them (t2m.model.training.checkpoint.save_checkpoint), for the export
+tests."""
 from __future__ import annotations
 
 
@@ -16,8 +17,8 @@ def make_runs(root, cond_drop: float = 0.1, length_conditioning: bool = True, te
     torch.manual_seed(0)
     data_dir = root / "data"
     data_dir.mkdir(parents=True)
-    summary = {"name": "bandai-namco-smpl22", "license": "CC BY-NC 4.0", "attribution": "Kobayashi et al., Bandai Namco",
-               "captions": "templated from labels"}
+    summary = {"name": "bandai-namco-smpl22", "license": "CC BY-NC 4.0",
+               "attribution": "Kobayashi et al., Bandai Namco", "captions": "templated from labels"}
     (data_dir / "summary.json").write_text(json.dumps(summary))
     rng = np.random.default_rng(0)
     vq_run, gpt_run = root / "vq", root / "gpt"

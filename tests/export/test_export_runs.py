@@ -23,8 +23,9 @@ def test_export_from_runs_writes_the_contract_manifest(exported_runs):
     assert "templated from labels" in manifest["training_data"]["attribution"]
     assert manifest["quantization"] == {"text_encoder": None, "gpt_step": "int8-dynamic"}
     printed = json.loads(stdout[: stdout.rindex("}") + 1])
-    assert printed["parity"]["gpt_step"]["codes_identical"] and printed["parity"]["gpt_step"]["max_abs_logit_diff"] <= 1e-4
-    assert printed["parity"]["text_encoder"]["max_abs_diff"] <= 1e-4 and printed["parity"]["decoder"]["max_abs_diff"] <= 1e-4
+    parity = printed["parity"]
+    assert parity["gpt_step"]["codes_identical"] and parity["gpt_step"]["max_abs_logit_diff"] <= 1e-4
+    assert parity["text_encoder"]["max_abs_diff"] <= 1e-4 and parity["decoder"]["max_abs_diff"] <= 1e-4
     assert printed["int8"]["gpt_step"]["int8_bytes"] < printed["int8"]["gpt_step"]["fp32_bytes"]
     card = (bundle / "MODEL_CARD.md").read_text()
     assert "Export checks" in card and "int8 dynamic quantisation" in card and "CC BY-NC 4.0" in card

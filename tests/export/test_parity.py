@@ -19,7 +19,7 @@ def spread_weights(module: torch.nn.Module, std: float, seed: int) -> None:
     """Larger random weights than the init's 0.02, so greedy rollouts visit many different codes."""
     generator = torch.Generator().manual_seed(seed)
     with torch.no_grad():
-        for name, parameter in module.named_parameters():
+        for parameter in module.parameters():
             if parameter.dim() >= 2:
                 parameter.copy_(torch.randn(parameter.shape, generator=generator) * std)
 

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-SAMPLE = Path(os.environ.get("T2M_SHARED", Path(__file__).resolve().parents[2] / ".." / "shared")) / "data" / "humanml3d-sample"
+SHARED = Path(os.environ.get("T2M_SHARED", Path(__file__).resolve().parents[2] / ".." / "shared"))
+SAMPLE = SHARED / "data" / "humanml3d-sample"
 
 CAPTIONS = (
     "a person walks forward",

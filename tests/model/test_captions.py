@@ -1,4 +1,5 @@
-"""t2m.model.data.captions: several distinct, deterministic, natural captions per label pair; mirroring; the text format."""
+"""t2m.model.data.captions: several distinct, deterministic, natural captions per label pair; mirroring; the text
+format."""
 from __future__ import annotations
 
 import re
@@ -95,7 +96,7 @@ def test_handed_gestures_name_the_hand_when_known() -> None:
 
 
 def test_unknown_labels_are_rejected_with_the_known_ones() -> None:
-    with pytest.raises(ValueError, match="unknown content label 'fly'.*walk"):
+    with pytest.raises(ValueError, match=r"unknown content label 'fly'.*walk"):
         make_captions("fly", "normal", "x")
     with pytest.raises(ValueError, match="unknown style label 'sleepy'"):
         make_captions("walk", "sleepy", "x")

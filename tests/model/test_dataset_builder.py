@@ -1,5 +1,5 @@
-"""t2m.model.data.dataset_builder + t2m.model.data.motion_data on real Bandai-Namco clips: HumanML3D layout, shapes, mirrors with
-swapped captions, disjoint deterministic splits, identical output for any worker count."""
+"""t2m.model.data.dataset_builder + t2m.model.data.motion_data on real Bandai-Namco clips: HumanML3D layout, shapes,
+mirrors with swapped captions, disjoint deterministic splits, identical output for any worker count."""
 from __future__ import annotations
 
 import json

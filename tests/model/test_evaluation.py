@@ -1,4 +1,5 @@
-"""`t2m eval` and `t2m train evaluator` end to end on a tiny dataset with tiny random models, plus the stream helpers."""
+"""`t2m eval` and `t2m train evaluator` end to end on a tiny dataset with tiny random models, plus the stream
+helpers."""
 from __future__ import annotations
 
 import hashlib
@@ -49,7 +50,8 @@ def one_thread():
 @pytest.fixture
 def fast_text(request, monkeypatch):
     if "slow" not in request.keywords:
-        monkeypatch.setattr("t2m.model.networks.text_encoders.get_text_encoder", lambda name, **kwargs: HashTextEncoder())
+        monkeypatch.setattr("t2m.model.networks.text_encoders.get_text_encoder",
+                            lambda name, **kwargs: HashTextEncoder())
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from t2m.model.networks.evaluator import (
     pad_batch,
 )
 
-TINY = dict(width=32, n_layer=1, n_head=2, embed_dim=16, dropout=0.0)
+TINY = {"width": 32, "n_layer": 1, "n_head": 2, "embed_dim": 16, "dropout": 0.0}
 
 
 @pytest.fixture(autouse=True)

@@ -10,8 +10,8 @@ torch.set_num_threads(1)
 
 
 def tiny_config(**overrides) -> GPTConfig:
-    values = dict(codebook_size=16, embed=32, n_head=4, n_layer_base=2, n_layer_head=1, block_size=9, text_dim=8,
-                  dropout=0.0, length_conditioning=True)
+    values = {"codebook_size": 16, "embed": 32, "n_head": 4, "n_layer_base": 2, "n_layer_head": 1, "block_size": 9,
+              "text_dim": 8, "dropout": 0.0, "length_conditioning": True}
     values.update(overrides)
     return GPTConfig(**values)
 

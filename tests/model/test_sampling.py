@@ -65,7 +65,7 @@ def manual_greedy(gpt: MotionGPT, cond: torch.Tensor, target: int, guidance: flo
     tokens = torch.zeros(1, 0, dtype=torch.long)
     length = torch.tensor([target])
     codes = []
-    for step in range(target):
+    for _ in range(target):
         c = gpt(cond[None], tokens, length)[:, -1]
         u = gpt(torch.zeros_like(cond[None]), tokens, length)[:, -1]
         logits = u + guidance * (c - u)

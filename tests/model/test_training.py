@@ -106,7 +106,8 @@ def test_vq_windows_are_normalised_crops_and_short_clips_are_left_out(data_dir):
 def test_text_motion_items_pad_with_end_and_pad_and_crop_long_clips(data_dir):
     reader = open_split(data_dir, "train")
     codes = {clip_id: np.arange(len(reader.features(clip_id)) // 4) % 10 for clip_id in reader.ids}
-    features = {c: np.full(384, i, np.float32) for i, c in enumerate({c for i in reader.ids for c in reader.captions(i)})}
+    captions = {c for i in reader.ids for c in reader.captions(i)}
+    features = {c: np.full(384, i, np.float32) for i, c in enumerate(captions)}
     dataset = TextMotionDataset(reader, codes, features, codebook_size=10, max_tokens=20)
     short = dataset.ids.index("train000")  # 40 frames -> 10 codes
     item = dataset[short]

@@ -10,7 +10,8 @@ from t2m.model.training.train_vq import vq_loss
 torch.set_num_threads(1)
 
 
-def t2m_gpt_vq_state_dict(feat: int, width: int, code_dim: int, nb_code: int, down_t: int = 2) -> dict[str, torch.Tensor]:
+def t2m_gpt_vq_state_dict(feat: int, width: int, code_dim: int, nb_code: int,
+                          down_t: int = 2) -> dict[str, torch.Tensor]:
     """Keys and shapes as in docs/t2m-gpt-checkpoints.md (the 'vqvae.' prefix removed), at small sizes."""
     state: dict[str, torch.Tensor] = {}
 
@@ -69,7 +70,7 @@ def test_shapes_encode_decode(quantizer):
     torch.manual_seed(0)
     model = MotionVQVAE(VQConfig(width=16, code_dim=8, nb_code=16, quantizer=quantizer, residual_layers=2))
     x = torch.randn(2, 32, 263)
-    recon, parts = model(x)
+    recon, _ = model(x)
     assert recon.shape == x.shape
     codes = model.encode(x)
     assert codes.shape == ((2, 8, 2) if quantizer == "residual" else (2, 8))
@@ -106,7 +107,7 @@ def test_a_few_training_steps_lower_the_loss_on_fixed_data(quantizer):
     optimizer = torch.optim.AdamW(model.parameters(), lr=1e-3)
     losses = []
     for _ in range(30):
-        loss, parts = vq_loss(model, x)
+        loss, _ = vq_loss(model, x)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()

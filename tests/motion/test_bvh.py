@@ -57,7 +57,8 @@ def _two_joint_text(rotation_order: str, angles: tuple[float, float, float]) -> 
     channels = " ".join(f"{axis}rotation" for axis in rotation_order)
     values = " ".join(str(a) for a in angles)
     return (f"HIERARCHY\nROOT r\n{{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n"
-            f" JOINT j\n {{\n  OFFSET 0 0 0\n  CHANNELS 3 {channels}\n  End Site\n  {{\n   OFFSET 1 2 3\n  }}\n }}\n}}\n"
+            f" JOINT j\n {{\n  OFFSET 0 0 0\n  CHANNELS 3 {channels}\n"
+            f"  End Site\n  {{\n   OFFSET 1 2 3\n  }}\n }}\n}}\n"
             f"MOTION\nFrames: 1\nFrame Time: 0.0333333\n0 0 0 {values}\n")
 
 

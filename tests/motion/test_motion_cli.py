@@ -71,8 +71,8 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, make_input, argv, me
 def test_no_traceback_from_the_real_command(tmp_path):
     bad = tmp_path / "bad.npy"
     np.save(bad, np.zeros((3, 5), np.float32))
-    result = subprocess.run([sys.executable, "-m", "t2m.cli", "motion", "joints", str(bad), "-o", str(tmp_path / "o.npy")],
-                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    command = [sys.executable, "-m", "t2m.cli", "motion", "joints", str(bad), "-o", str(tmp_path / "o.npy")]
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
         f"t2m motion: error: {bad}: features must have shape [T, 263] with T >= 1, got (3, 5)"
@@ -85,11 +85,12 @@ def test_from_bvh_on_a_real_bandai_namco_clip(tmp_path, capsys):
         pytest.skip(f"no Bandai-Namco walk clip under {BANDAI} (set T2M_BANDAI_DIR)")
     pytest.importorskip("t2m.motion.retarget")
     out = tmp_path / "walk.npy"
-    code, stdout, err = run(capsys, "motion", "from-bvh", str(clips[0]), "--map", "bandai-namco", "--fps", "20",
-                            "-o", str(out))
+    code, _, err = run(capsys, "motion", "from-bvh", str(clips[0]), "--map", "bandai-namco", "--fps", "20",
+                       "-o", str(out))
     assert code == 0, err
     joints = np.load(out)
-    frames_30fps = int(next(line for line in clips[0].read_text().splitlines() if line.startswith("Frames:")).split()[1])
+    frames_line = next(line for line in clips[0].read_text().splitlines() if line.startswith("Frames:"))
+    frames_30fps = int(frames_line.split()[1])
     assert joints.shape == ((frames_30fps - 1) * 2 // 3 + 1, 22, 3)
     assert abs(joints[..., 1].min()) < 1e-6 and np.abs(joints[0, 0, [0, 2]]).max() < 1e-6
     # walking forward: the pelvis ends up well ahead along +Z

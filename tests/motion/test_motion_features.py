@@ -129,7 +129,8 @@ def test_kit21_round_trip_on_synthetic_motion():
     rng = np.random.default_rng(3)
     frames = 60
     time = np.linspace(0, 1, frames)[:, None]
-    local = qfrom_axis_angle(rng.normal(size=(1, KIT21.num_joints, 3)), 0.3 * np.sin(6 * time + rng.uniform(0, 6, (1, 21))))
+    axes = rng.normal(size=(1, KIT21.num_joints, 3))
+    local = qfrom_axis_angle(axes, 0.3 * np.sin(6 * time + rng.uniform(0, 6, (1, 21))))
     local[:, 0] = qfrom_axis_angle(np.array([0.0, 1.0, 0.0]), 1.5 * time[:, 0])
     root = np.concatenate([np.sin(time), 1.0 + 0.02 * np.cos(9 * time), 2 * time], axis=1)
     joints = normalize_joints(forward_kinematics(local, root, KIT21), "kit21")

@@ -48,7 +48,8 @@ def test_euler_matches_bvh_convention_and_round_trips(order):
     angles = RNG.uniform(-180, 180, size=(500, 3))
     angles[:, 1] = RNG.uniform(-89.5, 89.5, size=500)
     q = euler_to_quat(angles, order)
-    expected = elementary(order[0], angles[:, 0]) @ elementary(order[1], angles[:, 1]) @ elementary(order[2], angles[:, 2])
+    first, second, third = (elementary(axis, angles[:, i]) for i, axis in enumerate(order))
+    expected = first @ second @ third
     assert np.abs(quat_to_matrix(q) - expected).max() < 1e-12
     assert np.abs(quat_to_euler(q, order) - angles).max() < 1e-8
     radians = quat_to_euler(q, order, degrees=False)

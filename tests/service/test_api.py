@@ -1,6 +1,8 @@
 """POST /generate through the ASGI app on the real OnnxEngine (tiny random bundle): formats, seeds, segments."""
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
 
@@ -37,7 +39,7 @@ def test_segment_boundaries(app_client, durations):
     spans = data["segments"]
     assert [s["text"] for s in spans] == [f"sentence {i}" for i in range(len(durations))]
     assert spans[0]["start_frame"] == 0
-    for span, following in zip(spans, spans[1:]):
+    for span, following in pairwise(spans):
         assert span["end_frame"] == following["start_frame"]              # contiguous
     for span, duration in zip(spans, durations):
         length = span["end_frame"] - span["start_frame"]
@@ -139,7 +141,7 @@ def test_metrics_count_tokens(app_client):
     after = app_client.get("/metrics").text
 
     def tokens(text: str) -> float:
-        line = next(l for l in text.splitlines() if l.startswith("t2m_tokens_generated_total"))
+        line = next(row for row in text.splitlines() if row.startswith("t2m_tokens_generated_total"))
         return float(line.split()[-1])
 
     assert tokens(after) - tokens(before) == 25

@@ -1,4 +1,5 @@
-"""The service's bundle loader (t2m.service.engine.bundle on the t2m.bundle contract) refuses broken bundles with a BundleError naming the file or field."""
+"""The service's bundle loader (t2m.service.engine.bundle on the t2m.bundle contract) refuses broken bundles with a
+BundleError naming the file or field."""
 from __future__ import annotations
 
 import hashlib
@@ -97,7 +98,8 @@ def test_size_mismatch_is_named(bundle_copy):
     (lambda m: m["gpt"].update(block_size=10), "block_size"),
     (lambda m: m.update(residual_layers=2), "residual_layers"),
     (lambda m: m["gpt"].update(n_layer=3), "input 'past_kv' has size 2 on axis 0, the manifest implies 3"),
-    (lambda m: m["text_encoder"].update(dim=16), "text_encoder.onnx: output 'text_features' has size 32 on axis 1, the manifest implies 16"),
+    (lambda m: m["text_encoder"].update(dim=16),
+     "text_encoder.onnx: output 'text_features' has size 32 on axis 1, the manifest implies 16"),
     (lambda m: m.update(codebook_size=40, end_id=40), "'logits' has size 33 on axis 1, the manifest implies 41"),
     (lambda m: m.update(feature_dim=251), "'features' has size 263 on axis 2, the manifest implies 251"),
     (lambda m: m["files"].pop("decoder.onnx"), "does not list 'decoder.onnx'"),

@@ -66,7 +66,7 @@ def test_guidance_without_unconditional_branch_is_flagged(bundle_without_uncond)
 def test_engine_checks_limits_itself(onnx_engine):
     with pytest.raises(RequestLimitError, match="top_k"):
         onnx_engine.generate(_request(top_k=33))
-    with pytest.raises(RequestLimitError, match="segments.0.duration"):
+    with pytest.raises(RequestLimitError, match=r"segments\.0\.duration"):
         onnx_engine.generate(_request(durations=(10.5,)))
 
 

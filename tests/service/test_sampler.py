@@ -115,7 +115,7 @@ def test_cancelled_job_stops_and_others_finish():
 
 
 def test_target_beyond_max_tokens_is_refused():
-    with pytest.raises(ValueError, match="outside 1..10"):
+    with pytest.raises(ValueError, match=r"outside 1\.\.10"):
         sample_codes(ScriptedStep(), [_job(_cond(1), [11])], 10, END)
 
 

@@ -13,8 +13,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("bench", help="generation speed: onnxruntime + KV cache vs PyTorch eager",
                                    description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true",
-                        help="one repeat, and only 10 tokens at the T2M-GPT release size (under ~40 s once the graphs are cached)")
-    parser.add_argument("--threads", type=int, default=None, help="threads for torch and onnxruntime (default: all cores)")
+                        help="one repeat, and only 10 tokens at the T2M-GPT release size "
+                             "(under ~40 s once the graphs are cached)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="threads for torch and onnxruntime (default: all cores)")
     parser.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
                         help="where exported benchmark graphs are kept between runs (default ~/.cache/t2m/bench)")
     parser.add_argument("--no-cache", action="store_true", help="export the graphs afresh into a temporary directory")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import secrets
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -83,7 +84,7 @@ def _field_name(loc: tuple[Any, ...]) -> str:
     return "--" + str(loc[0]).replace("_", "-") if loc else "request"
 
 
-def _one_line(errors: list[dict[str, Any]]) -> str:
+def _one_line(errors: Sequence[Mapping[str, Any]]) -> str:
     return "; ".join(f"{_field_name(tuple(e['loc']))}: {e['msg']}" for e in errors)
 
 

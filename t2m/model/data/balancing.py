@@ -14,14 +14,14 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from t2m.model.data.captions import mirror_label
 
-__all__ = ["item_action", "balanced_weights", "action_masses", "run_sampling_weights", "BALANCE_POWER_HELP"]
+__all__ = ["BALANCE_POWER_HELP", "action_masses", "balanced_weights", "item_action", "run_sampling_weights"]
 
 _BANDAI_ID = re.compile(r"^(M?)dataset-\d+_([a-z-]+)_[a-z-]+_\d+(?:_p\d+)?$")
 OTHER = "other"

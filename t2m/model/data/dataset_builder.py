@@ -35,22 +35,31 @@ import shutil
 import tarfile
 import tempfile
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
+from itertools import pairwise
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
 from t2m.model.data.captions import format_caption_line, make_captions, mirror_caption, mirror_label
 from t2m.motion.bvh import read_bvh
+from t2m.motion.constants import FPS
 from t2m.motion.features import feature_dim, features_to_joints, joints_to_features, normalize_joints
 from t2m.motion.retarget import BANDAI_NAMCO, bvh_to_smpl22
 from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import mirror_joints
-from t2m.motion.constants import FPS
 
-__all__ = ["ClipSource", "BuildOptions", "find_clips", "build_dataset", "feature_statistics", "assign_splits",
-           "open_source"]
+__all__ = [
+    "BuildOptions",
+    "ClipSource",
+    "assign_splits",
+    "build_dataset",
+    "feature_statistics",
+    "find_clips",
+    "open_source",
+]
 
 log = logging.getLogger("t2m.data")
 
@@ -105,7 +114,8 @@ def _tar_members_needed(tar: tarfile.TarFile) -> Iterable[tarfile.TarInfo]:
         parts = Path(member.name).parts
         if not member.isfile() or ".." in parts or member.name.startswith("/"):
             continue
-        if (len(parts) >= 2 and parts[-2] in ("data", "cfg") and Path(member.name).suffix in (".bvh", ".json", ".txt")) \
+        in_data_or_cfg = len(parts) >= 2 and parts[-2] in ("data", "cfg")
+        if (in_data_or_cfg and Path(member.name).suffix in (".bvh", ".json", ".txt")) \
                 or parts[-1] in ("LICENSE", "README.md"):
             yield member
 
@@ -150,7 +160,9 @@ def find_clips(root: str | os.PathLike) -> list[ClipSource]:
     clips: list[ClipSource] = []
     data_dirs = sorted(p for p in root.rglob("data") if p.is_dir() and (p.parent / "cfg").is_dir())
     if not data_dirs:
-        raise ValueError(f"{root}: no Bandai-Namco dataset found (expected <dataset>/data/*.bvh next to <dataset>/cfg/)")
+        raise ValueError(
+            f"{root}: no Bandai-Namco dataset found (expected <dataset>/data/*.bvh next to <dataset>/cfg/)"
+        )
     for data_dir in data_dirs:
         cfg = data_dir.parent / "cfg"
         contents = _labels(cfg / "content_label.txt")
@@ -201,7 +213,7 @@ def assign_splits(clips: Sequence[ClipSource]) -> dict[str, str]:
 def _pieces(num_frames: int, max_frames: int) -> list[tuple[int, int]]:
     count = math.ceil(num_frames / max_frames)
     bounds = np.linspace(0, num_frames, count + 1).round().astype(int)
-    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    return [(int(a), int(b)) for a, b in pairwise(bounds)]
 
 
 def _save_item(out: Path, item_id: str, joints: np.ndarray) -> int:
@@ -301,13 +313,15 @@ def _work(job: tuple[ClipSource, str, BuildOptions]) -> ClipResult:
 # --- statistics ----------------------------------------------------------------------------------------------------
 def feature_statistics(features: Iterable[np.ndarray], num_joints: int = 22) -> tuple[np.ndarray, np.ndarray]:
     """HumanML3D-style Mean/Std [D] of feature rows: per channel-group std averaging, then a floor (STD_FLOOR)."""
-    total, total_sq, count = None, None, 0
+    total: np.ndarray | None = None
+    total_sq: np.ndarray | None = None
+    count = 0
     for rows in features:
         rows64 = rows.astype(np.float64)
         total = rows64.sum(0) if total is None else total + rows64.sum(0)
         total_sq = (rows64**2).sum(0) if total_sq is None else total_sq + (rows64**2).sum(0)
         count += len(rows64)
-    if not count:
+    if total is None or total_sq is None or not count:
         raise ValueError("no training feature rows to compute Mean/Std from (is the train split empty?)")
     mean = total / count
     std = np.sqrt(np.maximum(total_sq / count - mean**2, 0.0))
@@ -378,7 +392,7 @@ def _build(root: Path, out: Path, options: BuildOptions, source_name: str) -> di
     log.info("%d clips found, building %d (workers=%d, mirror=%s)", len(all_clips), len(clips), options.workers,
              options.mirror)
     jobs = [(clip, str(out), options) for clip in clips]
-    bar = dict(total=len(jobs), desc="clips", unit="clip", disable=not options.progress)
+    bar: dict[str, Any] = {"total": len(jobs), "desc": "clips", "unit": "clip", "disable": not options.progress}
     if options.workers == 1:
         results = [_work(job) for job in tqdm(jobs, **bar)]
     else:
@@ -458,7 +472,8 @@ def format_summary(summary: dict) -> str:
              f"({summary['clips_skipped']} skipped), {summary['items']} items, {summary['frames']} frames, "
              f"{summary['hours']} h at {summary['fps']} fps"]
     for split, s in summary["splits"].items():
-        lines.append(f"  {split:5s} {s['source_clips']:5d} clips {s['items']:6d} items ({s['mirrored_items']} mirrored) "
-                     f"{s['frames']:8d} frames {s['hours']:6.2f} h {s['captions']:6d} captions")
+        lines.append(f"  {split:5s} {s['source_clips']:5d} clips {s['items']:6d} items "
+                     f"({s['mirrored_items']} mirrored) {s['frames']:8d} frames {s['hours']:6.2f} h "
+                     f"{s['captions']:6d} captions")
     lines.append(f"  licence {summary['license']}: {summary['attribution']}")
     return "\n".join(lines)

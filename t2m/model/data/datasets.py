@@ -9,18 +9,27 @@ A "reader" is anything with ``ids``, ``features(id)`` [T, D], ``captions(id)`` -
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
+if TYPE_CHECKING:
+    from t2m.model.networks.vqvae import MotionVQVAE
+
 
 class MotionReader(Protocol):
-    ids: Sequence[str]
-    mean: np.ndarray
-    std: np.ndarray
+    @property
+    def ids(self) -> Sequence[str]: ...
+
+    @property
+    def mean(self) -> np.ndarray: ...
+
+    @property
+    def std(self) -> np.ndarray: ...
 
     def features(self, clip_id: str) -> np.ndarray: ...
 
@@ -79,7 +88,7 @@ class VQWindowDataset(Dataset):
 
 
 @torch.no_grad()
-def precompute_codes(vq: torch.nn.Module, reader: MotionReader, batch_frames: int = 4096) -> dict[str, np.ndarray]:
+def precompute_codes(vq: MotionVQVAE, reader: MotionReader, batch_frames: int = 4096) -> dict[str, np.ndarray]:
     """Encode every clip of the reader once: id -> int64 codes [T // 4] (or [T // 4, R])."""
     from tqdm import tqdm
 
@@ -95,7 +104,8 @@ def precompute_codes(vq: torch.nn.Module, reader: MotionReader, batch_frames: in
 
 def save_codes(path: str | Path, codes: Mapping[str, np.ndarray]) -> None:
     with open(path, "wb") as handle:
-        np.savez(handle, **{f"clip/{k}": v for k, v in codes.items()})
+        # allow_pickle (the default) is named so that mypy does not match the ** mapping against it
+        np.savez(handle, allow_pickle=True, **{f"clip/{k}": v for k, v in codes.items()})
 
 
 def load_codes(path: str | Path) -> dict[str, np.ndarray]:
@@ -178,14 +188,15 @@ class LengthBucketSampler(Sampler[list[int]]):
     replacement by those weights, bucketed the same way."""
 
     def __init__(self, token_counts: Sequence[int], batch_size: int, pool_batches: int = 32,
-                 generator: torch.Generator | None = None, weights: Sequence[float] | None = None) -> None:
+                 generator: torch.Generator | None = None,
+                 weights: Sequence[float] | np.ndarray | None = None) -> None:
         self.token_counts = np.asarray(token_counts)
         self.batch_size, self.pool_batches, self.generator = batch_size, pool_batches, generator
         if weights is not None and len(weights) != len(self.token_counts):
             raise ValueError(f"weights: {len(weights)} values for {len(self.token_counts)} items")
         self.weights = None if weights is None else torch.as_tensor(np.asarray(weights, dtype=np.float64))
 
-    def __iter__(self):  # noqa: ANN204
+    def __iter__(self):
         count = len(self.token_counts)
         if self.weights is None:
             order = torch.randperm(count, generator=self.generator).numpy()

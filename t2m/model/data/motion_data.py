@@ -20,7 +20,7 @@ import numpy as np
 
 from t2m.model.data.captions import parse_caption_line
 
-__all__ = ["MotionDirectory", "Caption", "SKELETON_BY_DIM", "SPLITS"]
+__all__ = ["SKELETON_BY_DIM", "SPLITS", "Caption", "MotionDirectory"]
 
 SKELETON_BY_DIM = {263: "smpl22", 251: "kit21"}
 SPLITS = ("train", "val", "test", "all")

@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Sequence, Sized
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -36,6 +36,10 @@ import torch
 from t2m.model.evaluation import metrics
 from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_texts
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
+
+if TYPE_CHECKING:
+    from t2m.model.networks.gpt import MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE
 
 
 @dataclass
@@ -70,9 +74,13 @@ class EvalOptions:
         if self.temperature < 0:
             raise ValueError(f"temperature must be >= 0, got {self.temperature}")
         if self.mm_repeats < 2 or self.mm_texts < 1:
-            raise ValueError(f"MModality needs mm_texts >= 1 and mm_repeats >= 2, got {self.mm_texts}/{self.mm_repeats}")
+            raise ValueError(
+                f"MModality needs mm_texts >= 1 and mm_repeats >= 2, got {self.mm_texts}/{self.mm_repeats}"
+            )
         if self.stream_sentences < 2:
-            raise ValueError(f"stream_sentences must be at least 2 (a stream needs a join), got {self.stream_sentences}")
+            raise ValueError(
+                f"stream_sentences must be at least 2 (a stream needs a join), got {self.stream_sentences}"
+            )
         if not 0 < self.stride <= self.window:
             raise ValueError(f"need 0 < stride <= window, got stride {self.stride}, window {self.window}")
         if self.batch_size < 1:
@@ -84,8 +92,8 @@ class Models:
     """The three trained networks and the statistics the VQ-VAE's outputs are de-normalised with."""
 
     evaluator: MotionEvaluator
-    vq: torch.nn.Module
-    gpt: torch.nn.Module
+    vq: MotionVQVAE
+    gpt: MotionGPT
     vq_mean: np.ndarray
     vq_std: np.ndarray
     evaluator_text: str = "minilm"
@@ -203,7 +211,7 @@ def pelvis_velocity_jumps(joints: np.ndarray, joins: Sequence[int] = (), margin:
 # ------------------------------------------------------------------------------------------- generation
 
 
-def _groups_by_length(sequences: Sequence[Sequence]) -> dict[int, list[int]]:
+def _groups_by_length(sequences: Sequence[Sized]) -> dict[int, list[int]]:
     groups: dict[int, list[int]] = {}
     for index, sequence in enumerate(sequences):
         groups.setdefault(len(sequence), []).append(index)
@@ -240,7 +248,7 @@ def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size:
 
 
 
-def sample(models: Models, cond: np.ndarray, tokens: Sequence[int], guidance: float, options: EvalOptions,
+def sample(models: Models, cond: np.ndarray, tokens: Sequence[int] | np.ndarray, guidance: float, options: EvalOptions,
            generator: np.random.Generator, desc: str) -> list[list[int]]:
     """GPT code sequences of exactly `tokens[i]` codes for each condition row, in batches."""
     from tqdm import tqdm
@@ -423,9 +431,13 @@ def stream_metrics(evaluator: MotionEvaluator | None, motions: Sequence[np.ndarr
         inside.append(jumps_in)
     result = {"pelvis_jump_joins": float(np.concatenate(at_joins).mean()),
               "pelvis_jump_within": float(np.concatenate(inside).mean())}
-    if real_window_emb is not None and len(sliding) >= 2:
+    if real_window_emb is None:
+        return result
+    if evaluator is None:
+        raise ValueError("real_window_emb needs the evaluator to embed the stream windows with")
+    if len(sliding) >= 2:
         result["sliding_fid"] = metrics.fid(real_window_emb, embed_motions(evaluator, sliding, normalized=False))
-    if real_window_emb is not None and len(transition) >= 2:
+    if len(transition) >= 2:
         result["transition_fid"] = metrics.fid(real_window_emb, embed_motions(evaluator, transition, normalized=False))
     return result
 

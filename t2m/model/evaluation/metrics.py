@@ -7,6 +7,8 @@ confidence interval of 1.96 * std / sqrt(repeats) over repeated evaluations.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy import linalg
 
@@ -145,7 +147,7 @@ def mpjpe(joints_a: np.ndarray, joints_b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b, axis=-1).mean())
 
 
-def mean_confidence_interval(values: np.ndarray) -> tuple[float, float]:
+def mean_confidence_interval(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
     """(mean, half-width of the 95% interval) over repeated evaluations: 1.96 * std / sqrt(n), as the papers report."""
     values = np.asarray(values, dtype=np.float64).ravel()
     if values.size == 0:

@@ -103,6 +103,9 @@ class MotionEvaluator(nn.Module):
     """Joint text-motion embedding: `encode_motion` and `encode_text` return unit vectors [B, embed_dim]."""
 
     kind = "evaluator"
+    # buffers: the normalisation statistics (set_normalization)
+    mean: torch.Tensor
+    std: torch.Tensor
 
     def __init__(self, config: EvaluatorConfig | None = None):
         super().__init__()

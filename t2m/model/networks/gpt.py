@@ -48,7 +48,9 @@ class GPTConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.n_layer_base < 0 or self.n_layer_head < 0 or self.n_layer < 1:
-            raise ValueError(f"need at least one layer, got n_layer_base={self.n_layer_base} n_layer_head={self.n_layer_head}")
+            raise ValueError(
+                f"need at least one layer, got n_layer_base={self.n_layer_base} n_layer_head={self.n_layer_head}"
+            )
         if self.embed % self.n_head:
             raise ValueError(f"embed ({self.embed}) must be divisible by n_head ({self.n_head})")
         if self.block_size < 2:
@@ -99,6 +101,8 @@ def sinusoid_table(length: int, dim: int) -> torch.Tensor:
 class SinusoidalPositions(nn.Module):
     """Holds the fixed table as the buffer ``embed`` [block_size, 1, E] (the name T2M-GPT's weights use)."""
 
+    embed: torch.Tensor  # buffer
+
     def __init__(self, block_size: int, embed: int) -> None:
         super().__init__()
         self.register_buffer("embed", sinusoid_table(block_size, embed))
@@ -120,6 +124,8 @@ def _drop_legacy_keys(*names: str):
 
 class CausalSelfAttention(nn.Module):
     """Multi-head causal self-attention with separate key/query/value projections (T2M-GPT's layout)."""
+
+    causal_mask: torch.Tensor  # buffer (not saved)
 
     def __init__(self, config: GPTConfig) -> None:
         super().__init__()

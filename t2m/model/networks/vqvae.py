@@ -14,7 +14,7 @@ de-normalisation happens outside (in the exported decoder graph).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
-from typing import Any
+from typing import Any, TypeAlias
 
 import torch
 import torch.nn.functional as F
@@ -130,7 +130,10 @@ class Decoder(nn.Module):
         return self.model(x)
 
 
-def build_quantizer(config: VQConfig) -> nn.Module:
+Quantizer: TypeAlias = EMAResetQuantizer | PlainQuantizer | ResidualQuantizer
+
+
+def build_quantizer(config: VQConfig) -> Quantizer:
     if config.quantizer == "ema_reset":
         return EMAResetQuantizer(config.nb_code, config.code_dim, mu=config.ema_mu)
     if config.quantizer == "plain":

@@ -19,6 +19,12 @@ RIC_START = 4
 class BoneLengths(torch.nn.Module):
     """Normalised features [..., T, D] -> bone lengths in metres [..., T, J-1] (bone j joins joint j to its parent)."""
 
+    # buffers (registered in __init__)
+    mean: torch.Tensor
+    std: torch.Tensor
+    child_joints: torch.Tensor
+    parent_joints: torch.Tensor
+
     def __init__(self, mean: np.ndarray, std: np.ndarray, parents: Sequence[int]) -> None:
         super().__init__()
         joints = len(parents)

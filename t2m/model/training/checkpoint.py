@@ -9,9 +9,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 from torch import nn
+
+if TYPE_CHECKING:
+    from t2m.model.networks.evaluator import MotionEvaluator
+    from t2m.model.networks.gpt import MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
@@ -32,7 +37,7 @@ def model_kind(model: nn.Module) -> str:
 
 
 def _config_dict(model: nn.Module) -> dict[str, Any]:
-    config = model.config
+    config: Any = model.config  # the model class's own config dataclass
     return config.to_dict() if hasattr(config, "to_dict") else dict(vars(config))
 
 
@@ -85,6 +90,16 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
 
         return MotionEvaluator(EvaluatorConfig(**config))
     raise ValueError(f"unknown checkpoint kind {kind!r}")
+
+
+@overload
+def load_model(run_dir: str | Path, expect_kind: Literal["vq"]) -> MotionVQVAE: ...
+@overload
+def load_model(run_dir: str | Path, expect_kind: Literal["gpt"]) -> MotionGPT: ...
+@overload
+def load_model(run_dir: str | Path, expect_kind: Literal["evaluator"]) -> MotionEvaluator: ...
+@overload
+def load_model(run_dir: str | Path, expect_kind: str | None = None) -> nn.Module: ...
 
 
 def load_model(run_dir: str | Path, expect_kind: str | None = None) -> nn.Module:

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -29,8 +29,10 @@ LOG_CSV = "log.csv"
 TRAIN_LOG = "train.log"
 CURVES = "curves.png"
 
-StepFn = Callable[[nn.Module, Any], tuple[torch.Tensor, dict[str, float], int]]
-ValFn = Callable[[nn.Module], dict[str, float]]
+ModelT = TypeVar("ModelT", bound=nn.Module)
+# (model, batch) -> (loss, metrics, samples in the batch); model -> validation metrics
+StepFn = Callable[[ModelT, Any], tuple[torch.Tensor, dict[str, float], int]]
+ValFn = Callable[[ModelT], dict[str, float]]
 
 
 @dataclass
@@ -63,7 +65,8 @@ def set_threads(threads: int | None) -> None:
 
 def make_optimizer(model: nn.Module, settings: LoopSettings) -> torch.optim.AdamW:
     """AdamW; weight decay only on matrices of Linear/Conv layers (not biases, norms, embeddings, codebooks)."""
-    decay, no_decay = [], []
+    decay: list[nn.Parameter] = []
+    no_decay: list[nn.Parameter] = []
     for name, parameter in model.named_parameters():
         if not parameter.requires_grad:
             continue
@@ -220,12 +223,12 @@ class CsvLog:
 
 
 def run_training(
-    model: nn.Module,
+    model: ModelT,
     batches: Iterator,
-    step_fn: StepFn,
+    step_fn: StepFn[ModelT],
     settings: LoopSettings,
     run_dir: str | Path,
-    val_fn: ValFn | None = None,
+    val_fn: ValFn[ModelT] | None = None,
     data_info: dict[str, Any] | None = None,
     resume: bool = False,
     name: str = "train",
@@ -291,7 +294,8 @@ def run_training(
             model.train()
             row.update({f"val_{k}": round(float(v), 6) for k, v in values.items()})
         if row:
-            row = {"step": step, "lr": settings.lr * factor, **row, "elapsed_s": round(time.perf_counter() - run_start, 1)}
+            elapsed_s = round(time.perf_counter() - run_start, 1)
+            row = {"step": step, "lr": settings.lr * factor, **row, "elapsed_s": elapsed_s}
             log.append(row)
             logger.info(" ".join(f"{k}={v}" for k, v in row.items()))
         if step % settings.save_every == 0 or step == settings.steps:

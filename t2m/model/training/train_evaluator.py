@@ -122,8 +122,8 @@ def make_val_fn(pairs: PairSet, max_frames: int, unit: int, batch_size: int, fn_
     """Validation on fixed pairs: mean InfoNCE over batches of the training size, and 32-way R@1/R@3."""
     from t2m.model.evaluation.metrics import r_precision
 
-    motions, text = fixed_pairs(pairs, max_frames, unit)
-    text = torch.from_numpy(text)
+    motions, text_features = fixed_pairs(pairs, max_frames, unit)
+    text = torch.from_numpy(text_features)
 
     @torch.no_grad()
     def val_fn(model: MotionEvaluator) -> dict[str, float]:

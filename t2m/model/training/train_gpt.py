@@ -30,6 +30,7 @@ if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must n
     import torch
 
     from t2m.model.networks.gpt import MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE
 
 
 def corrupt_codes(
@@ -128,7 +129,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
     parser.add_argument("--lr-gamma", type=float, default=0.1)
     parser.add_argument("--text-encoder", choices=("minilm", "clip"), default="minilm")
-    parser.add_argument("--clip-weights", default=None, help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
+    parser.add_argument("--clip-weights", default=None,
+                        help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
     parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
     parser.add_argument("--embed", type=int, default=384)
     parser.add_argument("--layers", type=int, default=6, help="transformer blocks (split between trans_base/head)")
@@ -162,7 +164,7 @@ def parse_corruption(text: str) -> str | float:
     return value
 
 
-def load_or_encode_codes(vq: torch.nn.Module, reader: Any, path: Path, reuse: bool) -> dict[str, np.ndarray]:
+def load_or_encode_codes(vq: MotionVQVAE, reader: Any, path: Path, reuse: bool) -> dict[str, np.ndarray]:
     from t2m.model.data.datasets import load_codes, precompute_codes, save_codes
 
     if reuse and path.is_file():
@@ -258,8 +260,8 @@ def main(args: argparse.Namespace) -> int:
             "normalize": args.text_encoder == "minilm", "null_condition": "zeros",
             **({"clip_weights": str(Path(args.clip_weights).resolve())} if args.clip_weights else {}),
         },
-        "training": {"corruption": corruption, "cond_noise": args.cond_noise, "cond_drop": args.cond_drop, "length_keep": args.length_keep,
-                     "balance_power": args.balance_power},
+        "training": {"corruption": corruption, "cond_noise": args.cond_noise, "cond_drop": args.cond_drop,
+                     "length_keep": args.length_keep, "balance_power": args.balance_power},
     }
     run_training(
         model, infinite(loader), step_fn, settings, out,

@@ -5,8 +5,9 @@ loss = smooth-L1(recon, x)
                        (channels 4 : 4 + 3 (J-1) of the normalised features; T2M-GPT applies its "velocity"
                        loss to those channels themselves, we use their true temporal differences, which
                        penalises jitter)
-     + bone_weight   * L1 of the bone lengths (metres, t2m.model.training.bone_lengths) against the input's: the decoder predicts
-                       joint positions freely, and without this term generated bones stretch by centimetres
+     + bone_weight   * L1 of the bone lengths (metres, t2m.model.training.bone_lengths) against the input's: the
+                       decoder predicts joint positions freely, and without this term generated bones stretch by
+                       centimetres
      + commit_weight * the quantiser's loss: commitment for ema_reset/residual (weight 0.02, T2M-GPT);
                        codebook + 0.25 commitment for plain (weight 1, the original VQ-VAE)
 
@@ -31,7 +32,8 @@ if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must n
     from t2m.model.networks.vqvae import MotionVQVAE
     from t2m.model.training.bone_lengths import BoneLengths
 
-QUANTIZERS = ("ema_reset", "plain", "residual")  # = t2m.model.networks.vqvae.QUANTIZERS (kept here so argparse needs no torch)
+# = t2m.model.networks.vqvae.QUANTIZERS (kept here so argparse needs no torch)
+QUANTIZERS = ("ema_reset", "plain", "residual")
 
 
 def joints_from_feature_dim(feat_dim: int) -> int:
@@ -163,7 +165,9 @@ def parse_milestones(text: str) -> tuple[float, ...]:
 
 
 def window_loader(train_set: Any, batch_size: int, balance_power: float, out: Path) -> Any:
-    """Shuffled windows, or (balance_power < 1) windows drawn with action-balanced weights (t2m.model.data.balancing)."""
+    """Shuffled windows, or (balance_power < 1) windows drawn with action-balanced weights.
+
+    The weights come from t2m.model.data.balancing."""
     from torch.utils.data import DataLoader, WeightedRandomSampler
 
     from t2m.model.data.balancing import run_sampling_weights
