@@ -116,9 +116,6 @@ class GptParity:
     matches_sample_codes: bool
     max_abs_diff_vs_recompute: float
 
-    def ok(self, tolerance: float = 1e-4) -> bool:
-        return self.codes_identical and self.matches_sample_codes and self.max_abs_logit_diff <= tolerance
-
 
 def gpt_parity(gpt: MotionGPT, onnx_path: str | Path, steps: int = 50, guidance: float = 3.0, batch: int = 1,
                seed: int = 0) -> GptParity:
@@ -151,9 +148,6 @@ def gpt_parity(gpt: MotionGPT, onnx_path: str | Path, steps: int = 50, guidance:
 class TensorParity:
     shape: tuple[int, ...]
     max_abs_diff: float
-
-    def ok(self, tolerance: float = 1e-4) -> bool:
-        return self.max_abs_diff <= tolerance
 
 
 @torch.no_grad()

@@ -70,13 +70,6 @@ def test_multimodality_of_known_groups():
     assert metrics.multimodality(np.ones((5, 10, 2))) == 0.0
 
 
-def test_euclidean_distance_matrix_matches_direct_norms():
-    rng = np.random.default_rng(5)
-    a, b = rng.normal(size=(7, 5)), rng.normal(size=(9, 5))
-    direct = np.linalg.norm(a[:, None] - b[None], axis=2)
-    np.testing.assert_allclose(metrics.euclidean_distance_matrix(a, b), direct, atol=1e-9)
-
-
 def test_mpjpe_of_a_constant_offset():
     joints = np.random.default_rng(6).normal(size=(20, 22, 3))
     assert metrics.mpjpe(joints, joints + np.array([0.03, 0.0, 0.04])) == pytest.approx(0.05)

@@ -31,16 +31,6 @@ def _check_pairs(text_emb: np.ndarray, motion_emb: np.ndarray) -> tuple[np.ndarr
     return text, motion
 
 
-def euclidean_distance_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """[N, M] Euclidean distances between the rows of a [N, D] and b [M, D]."""
-    a = _as_matrix("a", a)
-    b = _as_matrix("b", b)
-    if a.shape[1] != b.shape[1]:
-        raise ValueError(f"a has {a.shape[1]} columns but b has {b.shape[1]}")
-    squared = (a * a).sum(1)[:, None] - 2.0 * a @ b.T + (b * b).sum(1)[None, :]
-    return np.sqrt(np.maximum(squared, 0.0))
-
-
 def activation_statistics(feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean [D] and covariance [D, D] of a set of embeddings, the Gaussian that FID compares."""
     feats = _as_matrix("feats", feats)
