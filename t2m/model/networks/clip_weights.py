@@ -9,7 +9,8 @@ Two forms are accepted:
   TorchScript code is compiled but never called here (we take the tensors and drop the module), and it needs
   nothing but torch (no torchvision, no OpenAI package). A reader of the zip's ``data.pkl`` would re-implement
   torch's storage layout and its mangled class names, which change between torch versions.
-  ``torch.load(..., weights_only=True)`` refuses such archives, by design.
+  ``torch.load(..., weights_only=True)`` refuses such archives, by design. torch 2.14 marks ``torch.jit.load`` as
+  deprecated (a FutureWarning, silenced here); if a later torch drops it, this one call needs a replacement.
 - A plain state dict in OpenAI's key layout (``torch.save(model.state_dict())``), read with ``weights_only=True``.
 
 Only the text keys are used: ``token_embedding.weight``, ``positional_embedding``,
@@ -26,6 +27,7 @@ LAION-trained ViT-B-32) would load and be computed with QuickGELU. Pass OpenAI's
 from __future__ import annotations
 
 import re
+import warnings
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -50,7 +52,9 @@ def read_clip_state(path: str | Path) -> dict[str, torch.Tensor]:
         raise FileNotFoundError(str(path))
     if _is_torchscript_archive(path):
         try:
-            state = torch.jit.load(str(path), map_location="cpu").state_dict()
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", category=FutureWarning)  # torch 2.14: "torch.jit.load is deprecated"
+                state = torch.jit.load(str(path), map_location="cpu").state_dict()
         except Exception as error:
             raise ClipWeightsError(
                 f"{path}: unreadable TorchScript archive ({_one_line(error)}); expected {EXPECTED}") from None
