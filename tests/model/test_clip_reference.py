@@ -80,6 +80,7 @@ def sentences() -> list[str]:
 def vit_b_32(tmp_path_factory) -> dict:
     """ViT-B/32's full state (open_clip's OpenAI layout, randomly initialised, every float tensor perturbed so
     that biases and norms matter), saved as OpenAI's file is: a TorchScript archive with its dtypes."""
+    torch.manual_seed(11)  # open_clip initialises from the global generator
     model = open_clip.create_model("ViT-B-32-quickgelu", pretrained=None)
     g = torch.Generator().manual_seed(11)
     state = {k: v + 0.02 * torch.randn(v.shape, generator=g) for k, v in model.state_dict().items()}
@@ -91,17 +92,29 @@ def vit_b_32(tmp_path_factory) -> dict:
 
 
 @pytest.fixture(scope="module")
-def token_ids() -> torch.Tensor:
+def batch_ids() -> torch.Tensor:
+    """Short captions as the bundle's tokenizer gives them: padded to the batch's longest."""
     texts = [t for t in sentences() if "<|" not in t][:64]
     return torch.tensor([e.ids for e in build_clip_tokenizer().encode_batch(texts)])
 
 
 @pytest.fixture(scope="module")
-def ours(vit_b_32, token_ids) -> torch.Tensor:
+def token_ids(batch_ids) -> torch.Tensor:
+    """The same, zero-padded to 77 as clip.tokenize gives them (OpenAI's model needs all 77 positions)."""
+    assert batch_ids.shape[1] < 77
+    return torch.nn.functional.pad(batch_ids, (0, 77 - batch_ids.shape[1]))
+
+
+@pytest.fixture(scope="module")
+def ours(vit_b_32, batch_ids, token_ids) -> torch.Tensor:
     tower = load_clip_text(vit_b_32["archive"])
     assert (tower.config.width, tower.config.layers, tower.config.heads) == (512, 12, 8)
     with torch.no_grad():
-        return tower.encode_text(token_ids)
+        at_77, at_longest = tower.encode_text(token_ids), tower.encode_text(batch_ids)
+    diff = (at_77 - at_longest).abs().max().item()
+    print(f"ours padded to 77 vs to the batch's longest ({batch_ids.shape[1]}): max |diff| {diff:.2e}")
+    assert diff <= 1e-5  # float32 rounding of other matrix shapes; nothing after the end token is seen
+    return at_77
 
 
 def test_features_match_open_clips_openai_loader_on_the_same_archive(vit_b_32, token_ids, ours):

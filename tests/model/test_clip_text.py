@@ -114,15 +114,18 @@ def test_onnx_text_graph_matches_pytorch(encoder, tmp_path):
     assert entry == {"kind": "clip", "dim": 48, "max_length": 77, "pooling": "eot", "normalize": False,
                      "null_condition": "zeros"}
     ids, mask = tokenize(tmp_path / "tokenizer.json", TEXTS)
-    assert ids.shape == (4, 77) and mask[2].sum() == 3  # fixed 77, zero padded
+    assert ids.shape == (4, 77) and mask[2].sum() == 3  # the longest is cut to 77, the others zero padded
     session = ort_session(tmp_path / "text_encoder.onnx")
     assert [i.name for i in session.get_inputs()] == ["input_ids", "attention_mask"]
     (features,) = session.run(None, {"input_ids": ids.numpy(), "attention_mask": mask.numpy()})
     assert np.abs(features - encoder.encode(TEXTS)).max() <= 1e-5
-    short = ids[:, :20]  # the graph takes any length up to 77 (the service always sends 77)
-    (cut,) = session.run(None, {"input_ids": short[:3].numpy(), "attention_mask": mask[:3, :20].numpy()})
-    assert np.abs(cut - features[:3]).max() <= 1e-5
-    assert json.loads((tmp_path / "tokenizer.json").read_text())["padding"]["strategy"] == {"Fixed": 77}
+    short_ids, short_mask = tokenize(tmp_path / "tokenizer.json", TEXTS[:3])  # padded to their longest
+    longest = int(short_mask.sum(1).max())
+    assert short_ids.shape == (3, longest) and torch.equal(short_ids, ids[:3, :longest])
+    assert ids[:3, longest:].eq(0).all()
+    (short,) = session.run(None, {"input_ids": short_ids.numpy(), "attention_mask": short_mask.numpy()})
+    assert np.abs(short - features[:3]).max() <= 1e-5  # causal attention: what follows the end token is never seen
+    assert json.loads((tmp_path / "tokenizer.json").read_text())["padding"]["strategy"] == "BatchLongest"
 
 
 # ------------------------------------------------------------------------------------------------- refusals

@@ -1,7 +1,8 @@
 """OpenAI CLIP's tokenizer as a tokenizer.json, against OpenAI's rules written out in Python
 (tests/model/clip_reference_tokenizer.py) on tricky strings: cleaning (ftfy's fixes, HTML entities, whitespace,
 Python's lower() with its final sigma), contractions, digits, special-token literals, truncation to 77 with the
-end token last, zero padding. The clip suite (test_clip_reference.py) compares with OpenAI's and open_clip's code."""
+end token last, zero padding (to the batch's longest). The clip suite (test_clip_reference.py) compares with
+OpenAI's and open_clip's code."""
 from __future__ import annotations
 
 import gzip
@@ -20,6 +21,11 @@ from t2m.model.networks.clip_tokenizer import (
 from tests.model.clip_reference_tokenizer import ReferenceTokenizer, have_ftfy
 
 START_ID, END_ID = 49406, 49407
+
+
+def ids77(encoding) -> list[int]:
+    """clip.tokenize's row: the ids zero-padded to 77 (ours pad only to the batch's longest)."""
+    return encoding.ids + [0] * (77 - len(encoding.ids))
 
 # strings that ftfy.fix_text leaves as they are (OpenAI's html.unescape, whitespace and lower() still apply)
 PLAIN = [
@@ -90,9 +96,9 @@ def test_plain_strings_tokenize_as_openai(tokenizer, reference, index):
     text = PLAIN[index]
     encoding = tokenizer.encode(text)
     expected = reference.tokenize(text, use_ftfy=have_ftfy())
-    assert encoding.ids == expected, tokenizer.normalizer.normalize_str(text)
+    assert ids77(encoding) == expected, tokenizer.normalizer.normalize_str(text)
     real = min(77, len(reference.encode(text, use_ftfy=have_ftfy())) + 2)  # id 0 is also "!": count, don't look
-    assert encoding.attention_mask == [1] * real + [0] * (77 - real)
+    assert len(encoding.ids) == real and encoding.attention_mask == [1] * real
 
 
 @pytest.mark.parametrize("text", sorted(FTFY_FIXED))
@@ -101,8 +107,8 @@ def test_ftfy_fixes_are_reproduced(tokenizer, reference, text):
         import ftfy
 
         assert ftfy.fix_text(text) == FTFY_FIXED[text]
-        assert tokenizer.encode(text).ids == reference.tokenize(text)
-    assert tokenizer.encode(text).ids == reference.tokenize(FTFY_FIXED[text], use_ftfy=False)
+        assert ids77(tokenizer.encode(text)) == reference.tokenize(text)
+    assert ids77(tokenizer.encode(text)) == reference.tokenize(FTFY_FIXED[text], use_ftfy=False)
 
 
 @pytest.mark.parametrize("case", sorted(KNOWN_DIFFERENCES))
@@ -113,16 +119,16 @@ def test_known_differences(tokenizer, reference, case):
         import ftfy
 
         assert ftfy.fix_text(text) == fixed
-    assert tokenizer.encode(text).ids == reference.tokenize(fixed, use_ftfy=False)
+    assert ids77(tokenizer.encode(text)) == reference.tokenize(fixed, use_ftfy=False)
 
 
 def test_truncation_keeps_the_end_token_last_and_padding_is_zero(tokenizer):
-    long = tokenizer.encode("walk " * 200)
+    long, short, empty = tokenizer.encode_batch(["walk " * 200, "bow", ""])
     assert len(long.ids) == 77 and long.ids[0] == START_ID and long.ids[-1] == END_ID
     assert long.ids[1:-1] == [long.ids[1]] * 75 and long.attention_mask == [1] * 77
-    short = tokenizer.encode("bow")
-    assert short.ids[:3] == [START_ID, tokenizer.token_to_id("bow</w>"), END_ID] and short.ids[3:] == [0] * 74
-    assert tokenizer.encode("").ids[:3] == [START_ID, END_ID, 0]
+    assert short.ids == [START_ID, tokenizer.token_to_id("bow</w>"), END_ID] + [0] * 74  # padded to the longest
+    assert short.attention_mask == [1] * 3 + [0] * 74 and empty.ids[:3] == [START_ID, END_ID, 0]
+    assert [len(e.ids) for e in tokenizer.encode_batch(["bow", "a person walks"])] == [5, 5]
 
 
 def test_saved_file_is_what_the_service_loads(tmp_path, tokenizer):
@@ -132,7 +138,9 @@ def test_saved_file_is_what_the_service_loads(tmp_path, tokenizer):
     served = load_tokenizer(path, max_length=77)
     texts = [PLAIN[1], PLAIN[5], PLAIN[17], *FTFY_FIXED]
     assert [e.ids for e in served.encode_batch(texts)] == [e.ids for e in tokenizer.encode_batch(texts)]
-    assert {len(e.ids) for e in served.encode_batch(texts)} == {77}
+    assert {len(e.ids) for e in served.encode_batch(texts)} == {77}  # PLAIN[17] is cut to 77
+    longest = max(len(tokenizer.encode(t).ids) for t in texts[:2])
+    assert {len(e.ids) for e in served.encode_batch(texts[:2])} == {longest}
 
 
 def test_merges_file_format_and_word_end_marker(tmp_path):
@@ -146,8 +154,9 @@ def test_merges_file_format_and_word_end_marker(tmp_path):
     hello, walks = 512 + 3, 512 + 7  # after 256 symbols + 256 word-end symbols, in merge order
     start, end = 512 + len(merges), 512 + len(merges) + 1
     encoding = small.encode("  HELLO   walks!")
-    assert encoding.ids == [start, hello, walks, 256 + byte_id["!"], end, 0, 0, 0]
+    assert encoding.ids == [start, hello, walks, 256 + byte_id["!"], end]
     assert small.encode("walk's 42").tokens[1:6] == ["wal", "k</w>", "'", "s</w>", "4</w>"]
     reference = ReferenceTokenizer(bpe, limit=len(merges))
     for text in ("  HELLO   walks!", "walk's 42", "hellohello walkswalks"):
-        assert small.encode(text).ids == reference.tokenize(text, context_length=8, use_ftfy=False)
+        ids = small.encode(text).ids
+        assert ids + [0] * (8 - len(ids)) == reference.tokenize(text, context_length=8, use_ftfy=False)

@@ -9,7 +9,9 @@ merges list shipped in ``clip_data/`` (OpenAI's ``bpe_simple_vocab_16e6.txt.gz``
    a literal ``<|startoftext|>`` / ``<|endoftext|>`` is its special token;
 3. byte-level BPE with ``</w>`` marking each word's end: 256 byte symbols, the same with ``</w>``, the first
    48,894 merges, then ``<|startoftext|>`` = 49406 and ``<|endoftext|>`` = 49407;
-4. ``[49406] + ids + [49407]``, cut to 77 with the end token kept last, zero padding to 77.
+4. ``[49406] + ids + [49407]``, cut to 77 with the end token kept last, zero padding to 77. Here the padding
+   stops at the batch's longest text: the text tower's attention is causal, so the end token's features do not
+   depend on what follows it (tests check ours at both lengths), and a batch of short captions runs ~4x faster.
 
 Step 1 is a normaliser chain here. ftfy cannot run inside a tokenizer.json, so its deterministic character fixes are
 reproduced (C1 controls read as Windows-1252, Latin ligatures, full/half-width forms, curly quotes, ANSI escapes
@@ -136,7 +138,8 @@ def openai_text_cleaning():
 
 def build_clip_tokenizer(bpe_path: str | Path | None = None, context_length: int = CONTEXT_LENGTH):
     """A `tokenizers.Tokenizer` that gives OpenAI's ``clip.tokenize(text, context_length, truncate=True)`` ids
-    (and an attention mask) for the merges file ``bpe_path`` (default: OpenAI's, shipped in clip_data/)."""
+    (and an attention mask), padded to the batch's longest, for the merges file ``bpe_path`` (default: OpenAI's,
+    shipped in clip_data/)."""
     from tokenizers import AddedToken, Regex, Tokenizer, decoders, models, pre_tokenizers, processors
 
     merges = read_merges(bpe_path or VOCAB_FILE)
@@ -156,7 +159,7 @@ def build_clip_tokenizer(bpe_path: str | Path | None = None, context_length: int
         single=f"{START} $A {END}", special_tokens=[(START, vocab[START]), (END, vocab[END])]
     )
     tokenizer.enable_truncation(max_length=context_length)  # the end token stays last
-    tokenizer.enable_padding(length=context_length, pad_id=0, pad_token=vocab_list[0])  # OpenAI pads with id 0
+    tokenizer.enable_padding(pad_id=0, pad_token=vocab_list[0])  # with id 0 as OpenAI, to the batch's longest text
     return tokenizer
 
 

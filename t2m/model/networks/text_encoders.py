@@ -142,7 +142,8 @@ class MiniLMEncoder(TextEncoder):
 
 class ClipEncoder(TextEncoder):
     """OpenAI's CLIP text features as T2M-GPT used them: ``encode_text``, float32, not normalised (512-d for
-    ViT-B/32), with OpenAI's tokenization (77 tokens, zero padded) from the same tokenizer.json the bundle ships."""
+    ViT-B/32), with OpenAI's tokenization (at most 77 tokens, zero padded to the batch's longest) from the same
+    tokenizer.json the bundle ships."""
 
     name = "clip"
     pooling = "eot"
@@ -172,7 +173,7 @@ class ClipEncoder(TextEncoder):
         return self.module
 
     def save_tokenizer(self, path: str | Path) -> Path:
-        """tokenizer.json: OpenAI's cleaning and BPE, truncation to 77 with the end token last, padding to 77."""
+        """tokenizer.json: OpenAI's cleaning and BPE, truncation to 77 with the end token last, batch padding."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         self.tokenizer.save(str(path))
