@@ -33,8 +33,9 @@ def mean_ms(run, repeats: int) -> float:
 def main() -> None:
     torch.set_num_threads(1)
     folder = Path(tempfile.mkdtemp())
-    sizes = {k: VIT_B_32_TEXT[k] for k in ("width", "layers", "embed_dim")}
-    archive = save_torchscript_archive(openai_clip_state(**sizes, seed=6), folder / "ViT-B-32.pt")
+    state = openai_clip_state(width=VIT_B_32_TEXT["width"], layers=VIT_B_32_TEXT["layers"],
+                              embed_dim=VIT_B_32_TEXT["embed_dim"], seed=6)
+    archive = save_torchscript_archive(state, folder / "ViT-B-32.pt")
     print(f"archive: {archive.stat().st_size / 1e6:.1f} MB (text tower + a one-block vision stub, OpenAI's dtypes)")
     start = time.perf_counter()
     encoder = ClipEncoder(archive)

@@ -91,11 +91,11 @@ def save_torchscript_archive(state: Mapping[str, torch.Tensor], path: str | Path
     root = _Node()
     for key, tensor in state.items():
         *parents, leaf = key.split(".")
-        node = root
+        node: nn.Module = root
         for part in parents:
             if part not in node._modules:
                 node.add_module(part, _Node())
-            node = node._modules[part]
+            node = node.get_submodule(part)
         if tensor.is_floating_point():
             node.register_parameter(leaf, nn.Parameter(tensor.clone(), requires_grad=False))
         else:

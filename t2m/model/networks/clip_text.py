@@ -106,6 +106,8 @@ class Transformer(nn.Module):
 class ClipTextTransformer(nn.Module):
     """CLIP's text tower: token ids [B, L] (L <= context_length) -> ``encode_text`` features [B, embed_dim]."""
 
+    causal_mask: torch.Tensor
+
     def __init__(self, config: ClipTextConfig) -> None:
         super().__init__()
         if config.width % config.heads:
