@@ -64,7 +64,7 @@ def encoder_text_source(encoder: Any) -> TextSource:
 
 
 def save_text_tokenizer(encoder: Any, path: Path) -> Path:
-    """The encoder's tokenizer.json; CLIP's BPE is converted here (t2m.model.networks.text_encoders has no tokenizer.json for it)."""
+    """The encoder's tokenizer.json (CLIP's: OpenAI's tokenizer, built by t2m.model.networks.clip_tokenizer)."""
     if encoder.name == "clip":
         from t2m.export.clip_tokenizer import save_clip_tokenizer
 
@@ -121,11 +121,13 @@ class ExportChecks:
                 lines.append(
                     f"- GPT step: max |logit diff| {r['max_abs_logit_diff']:.3f}; greedy codes identical over"
                     f" {r['steps']} steps: {r['greedy_codes_match']}; {r['fp32_ms_per_step']:.2f} -> "
-                    f"{r['int8_ms_per_step']:.2f} ms/step; {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
+                    f"{r['int8_ms_per_step']:.2f} ms/step;"
+                    f" {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
             if "text_encoder" in self.int8:
                 r = self.int8["text_encoder"]
                 lines.append(
-                    f"- text encoder: cosine to float32 features min {r['min_cosine']:.4f}, mean {r['mean_cosine']:.4f};"
+                    f"- text encoder: cosine to float32 features min {r['min_cosine']:.4f},"
+                    f" mean {r['mean_cosine']:.4f};"
                     f" {r['fp32_ms_per_batch']:.1f} -> {r['int8_ms_per_batch']:.1f} ms per batch of 8;"
                     f" {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
             lines.append("")
@@ -285,7 +287,8 @@ def training_data_entry(summary_path: Path) -> dict[str, str]:
         raise ValueError(f"{summary_path}: not valid JSON ({error})") from error
     for key in ("name", "license"):
         if not isinstance(summary.get(key), str) or not summary[key]:
-            raise ValueError(f"{summary_path}: field '{key}' is missing; the bundle must state the training data licence")
+            raise ValueError(
+                f"{summary_path}: field '{key}' is missing; the bundle must state the training data licence")
     attribution = summary.get("attribution", "")
     if summary.get("captions"):
         attribution = f"{attribution} Captions: {summary['captions']}.".strip()

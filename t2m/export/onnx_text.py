@@ -18,7 +18,8 @@ from torch import nn
 from t2m.export.graph_export import export_graph
 
 
-def export_text_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor, example_mask: torch.Tensor) -> Path:
+def export_text_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor,
+                      example_mask: torch.Tensor) -> Path:
     """Write text_encoder.onnx from ``module(input_ids, attention_mask) -> [B, Dt]`` (B and L dynamic)."""
     input_names = ["input_ids", "attention_mask"]
     path = export_graph(
@@ -97,7 +98,8 @@ def build_tiny_tokenizer(vocab_size: int = 200):
     tokenizer.train_from_iterator(TINY_CORPUS, trainer=trainer)
     cls_id, sep_id = tokenizer.token_to_id("[CLS]"), tokenizer.token_to_id("[SEP]")
     tokenizer.post_processor = processors.TemplateProcessing(
-        single="[CLS] $A [SEP]", pair="[CLS] $A [SEP] $B:1 [SEP]:1", special_tokens=[("[CLS]", cls_id), ("[SEP]", sep_id)]
+        single="[CLS] $A [SEP]", pair="[CLS] $A [SEP] $B:1 [SEP]:1",
+        special_tokens=[("[CLS]", cls_id), ("[SEP]", sep_id)],
     )
     return tokenizer
 
@@ -125,7 +127,8 @@ def export_tiny_text_encoder(out_dir: str | Path, dim: int, max_length: int, see
     """Write text_encoder.onnx + tokenizer.json of a tiny random encoder; return the manifest's text_encoder entry."""
     out_dir = Path(out_dir)
     tokenizer = build_tiny_tokenizer()
-    tokenizer_path = write_tokenizer(tokenizer, out_dir / "tokenizer.json", max_length, "[PAD]", tokenizer.token_to_id("[PAD]"))
+    tokenizer_path = write_tokenizer(tokenizer, out_dir / "tokenizer.json", max_length, "[PAD]",
+                                     tokenizer.token_to_id("[PAD]"))
     encoder = TinyTextEncoder(tokenizer.get_vocab_size(), dim, seed=seed)
     ids, mask = tokenize(tokenizer_path, ["a person walks", "a man jumps up and down twice"])
     export_text_graph(encoder, out_dir / "text_encoder.onnx", ids, mask)

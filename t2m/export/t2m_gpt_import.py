@@ -35,13 +35,14 @@ RELEASE_DILATION_GROWTH = 3
 RELEASE_TRAINING_DATA = {
     "name": "HumanML3D",
     "license": "HumanML3D / AMASS terms (non-commercial research use)",
-    "attribution": ("Zhang et al., T2M-GPT (CVPR 2023), released weights; trained on HumanML3D (Guo et al., CVPR 2022), "
-                    "built on AMASS and HumanAct12."),
+    "attribution": ("Zhang et al., T2M-GPT (CVPR 2023), released weights; trained on HumanML3D (Guo et al., "
+                    "CVPR 2022), built on AMASS and HumanAct12."),
 }
 RELEASE_LICENSE = "as released by the T2M-GPT authors; HumanML3D / AMASS data terms apply"
 CLIP_REQUIRED = (
     "a T2M-GPT import needs CLIP ViT-B/32 weights for its text encoder: pass --clip ViT-B-32.pt "
-    "(needs the optional extra [clip]), or --text-encoder-bundle DIR to reuse the 512-d text graph of another bundle"
+    "(OpenAI's file, as clip.load downloads it), or --text-encoder-bundle DIR to reuse the 512-d text graph of "
+    "another bundle"
 )
 
 
@@ -220,23 +221,20 @@ def import_t2m_gpt(
         raise ValueError("pass either --clip or --text-encoder-bundle, not both")
     if clip_weights is None and text_encoder_bundle is None:
         raise ValueError(CLIP_REQUIRED)
+    # the text encoder first: a wrong CLIP file is refused before the slow checkpoint loads
     if clip_weights is not None:
-        from t2m.model.networks.text_encoders import OPEN_CLIP_MISSING
-
-        try:
-            import open_clip  # noqa: F401 - fail before the slow loads
-        except ImportError as error:
-            raise ValueError(f"--clip needs {OPEN_CLIP_MISSING}") from error
-        if not Path(clip_weights).is_file():
-            raise FileNotFoundError(str(clip_weights))
+        text_source = clip_text_source(clip_weights)
+    else:
+        text_source = bundle_text_source(text_encoder_bundle)
     models = load_release(vq_path, gpt_path, mean_path, std_path, heads, allow_pickle)
-    text_source = clip_text_source(clip_weights) if clip_weights is not None else bundle_text_source(text_encoder_bundle)
     notes = (
         "## Imported weights\n\n"
         f"Imported from the released T2M-GPT checkpoints (`{Path(vq_path).name}`, `{Path(gpt_path).name}`).\n"
         f"Sizes inferred from tensor shapes; attention heads {models.gpt.config.n_head}"
-        f" ({'given' if heads else 'assumed embed / 64'}); residual dilation growth {RELEASE_DILATION_GROWTH} (release value).\n"
-        "Text features: CLIP ViT-B/32 encode_text, float32, not normalised (the reference recipe).\n"
+        f" ({'given' if heads else 'assumed embed / 64'}); residual dilation growth {RELEASE_DILATION_GROWTH}"
+        " (release value).\n"
+        "Text features: OpenAI's CLIP ViT-B/32 encode_text (QuickGELU, features at the end token), float32, not"
+        " normalised, on OpenAI's tokenization (the reference recipe).\n"
     )
     return export_bundle(
         out_dir, vq=models.vq, gpt=models.gpt, mean=models.mean, std=models.std, text_source=text_source,

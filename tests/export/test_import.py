@@ -18,22 +18,26 @@ from t2m.export.random_bundle import build_random_bundle
 from t2m.export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
 
 SMALL_VQ = {"width": 64, "code_dim": 32, "nb_code": 64, "down_t": 2, "depth": 3}
 SMALL_GPT = {"codebook": 64, "embed": 128, "layers": (2, 2), "block": 51, "text_dim": 512}
 
-try:
-    import open_clip  # noqa: F401
-
-    HAVE_OPEN_CLIP = True
-except ImportError:
-    HAVE_OPEN_CLIP = False
+SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}  # OpenAI's vocabulary and context, T2M-GPT's 512 dims
+CLIP_TEXTS = ["a person walks forward", "a man waves with the right hand \u2019", "bow " * 100]
 
 
 @pytest.fixture(scope="module")
 def clip_sized_text_bundle(tmp_path_factory) -> Path:
     """A bundle whose (tiny random) text graph has CLIP's 512 dims: the --text-encoder-bundle source in tests."""
     return build_random_bundle(tmp_path_factory.mktemp("text") / "b", text_dim=512, codebook_size=16)
+
+
+@pytest.fixture(scope="module")
+def small_clip_archive(tmp_path_factory) -> Path:
+    """Random CLIP weights in the exact format of OpenAI's ViT-B-32.pt, at a small width."""
+    path = tmp_path_factory.mktemp("clip") / "ViT-B-32.pt"
+    return save_torchscript_archive(openai_clip_state(**SMALL_CLIP, seed=5), path)
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +79,8 @@ def check_end_to_end(bundle: Path, files: dict[str, Path], vq_sizes: dict, gpt_s
     vq.load_state_dict(vq_state, strict=True)
     mean, std = np.load(files["mean.npy"]), np.load(files["std.npy"])
     with torch.no_grad():
-        expected = (vq.decode(torch.from_numpy(expected_codes)) * torch.from_numpy(std) + torch.from_numpy(mean)).numpy()
+        decoded = vq.decode(torch.from_numpy(expected_codes))
+        expected = (decoded * torch.from_numpy(std) + torch.from_numpy(mean)).numpy()
     (features,) = ort_session(bundle / "decoder.onnx").run(None, {"codes": expected_codes})
     assert features.shape == (1, 4 * steps, 263)
     assert np.abs(features - expected).max() <= 1e-4
@@ -121,18 +126,6 @@ def test_import_refuses_without_a_text_encoder(small_release, tmp_path):
     assert str(error.value) == CLIP_REQUIRED
 
 
-@pytest.mark.skipif(HAVE_OPEN_CLIP, reason="open_clip is installed: --clip works")
-def test_clip_without_open_clip_names_the_extra(small_release, tmp_path, capsys):
-    f = small_release
-    weights = tmp_path / "ViT-B-32.pt"
-    weights.write_bytes(b"not used")
-    code = t2m(["import", "t2m-gpt", "--vq", str(f["net_last.pth"]), "--gpt", str(f["net_best_fid.pth"]),
-                "--mean", str(f["mean.npy"]), "--std", str(f["std.npy"]), "--clip", str(weights), "-o", str(tmp_path / "o")])
-    assert code == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "open_clip_torch not installed (optional extra [clip]" in err
-
-
 def test_bad_checkpoints_are_named(tmp_path, small_release, clip_sized_text_bundle):
     f = small_release
     wrong = tmp_path / "wrong.pth"
@@ -150,7 +143,8 @@ def test_bad_checkpoints_are_named(tmp_path, small_release, clip_sized_text_bund
                        heads=3, **kwargs)
     import argparse
 
-    torch.save({"net": torch.load(f["net_last.pth"], weights_only=True)["net"], "args": argparse.Namespace(lr=1)}, wrong)
+    net = torch.load(f["net_last.pth"], weights_only=True)["net"]
+    torch.save({"net": net, "args": argparse.Namespace(lr=1)}, wrong)
     with pytest.raises(ValueError, match=r"wrong.pth: not loadable as plain tensors .*--allow-pickle"):
         import_t2m_gpt(wrong, f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], tmp_path / "o", **kwargs)
     np.save(tmp_path / "short.npy", np.zeros(10, np.float32))
@@ -159,26 +153,57 @@ def test_bad_checkpoints_are_named(tmp_path, small_release, clip_sized_text_bund
                        tmp_path / "o", **kwargs)
 
 
-@pytest.mark.clip
-@pytest.mark.skipif(not HAVE_OPEN_CLIP,
-                    reason="open_clip_torch not installed (optional extra [clip]; needs torch==2.14.1+torchvision==0.29.1)")
-def test_import_with_a_random_clip_checkpoint(small_release, tmp_path):
-    import open_clip
+def run_import(files: dict[str, Path], clip: Path, out: Path) -> int:
+    return t2m(["import", "t2m-gpt", "--vq", str(files["net_last.pth"]), "--gpt", str(files["net_best_fid.pth"]),
+                "--mean", str(files["mean.npy"]), "--std", str(files["std.npy"]), "--clip", str(clip), "-o", str(out)])
 
-    from t2m.export.parity import text_parity
-    from t2m.model.networks.text_encoders import ClipEncoder
 
-    model = open_clip.create_model("ViT-B-32", pretrained=None)  # random weights, no download
-    weights = tmp_path / "ViT-B-32.pt"
-    torch.save(model.state_dict(), weights)
-    f = small_release
+def check_clip_text_graph(bundle: Path, clip: Path) -> float:
+    """The bundle's tokenizer.json + text_encoder.onnx vs our PyTorch tower read from the CLIP file; max |diff|."""
+    from t2m.model.networks.clip_tokenizer import build_clip_tokenizer
+    from t2m.model.networks.clip_weights import load_clip_text
+    from t2m.service.engine.bundle import load_bundle
+    from t2m.service.engine.text import TextEncoder, load_tokenizer
+
+    served = load_bundle(bundle)
+    tokenizer = load_tokenizer(served.tokenizer_file, served.manifest.text_max_length)
+    encodings = build_clip_tokenizer().encode_batch(CLIP_TEXTS)
+    assert [e.ids for e in tokenizer.encode_batch(CLIP_TEXTS)] == [e.ids for e in encodings]
+    features = TextEncoder(served.text_session, tokenizer).encode(CLIP_TEXTS)  # the service's own path
+    with torch.no_grad():
+        expected = load_clip_text(clip).encode_text(torch.tensor([e.ids for e in encodings])).numpy()
+    assert features.shape == expected.shape == (len(CLIP_TEXTS), 512)
+    return float(np.abs(features - expected).max())
+
+
+def test_import_with_openais_clip_file_via_cli(small_release, small_clip_archive, tmp_path, capsys):
+    """--clip with a file in OpenAI's exact format (TorchScript archive, visual keys, float16): needs no open_clip."""
     out = tmp_path / "imported"
-    manifest, checks = import_t2m_gpt(f["net_last.pth"], f["net_best_fid.pth"], f["mean.npy"], f["std.npy"], out,
-                                      clip_weights=weights)
-    assert manifest["text_encoder"]["kind"] == "clip" and manifest["text_encoder"]["dim"] == 512
-    assert checks.parity["text_encoder"]["max_abs_diff"] <= 1e-4
-    report = text_parity(ClipEncoder(weights), out / "text_encoder.onnx", out / "tokenizer.json")
-    assert report.max_abs_diff <= 1e-4
+    assert run_import(small_release, small_clip_archive, out) == 0, capsys.readouterr().err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["text_encoder"] == {"kind": "clip", "dim": 512, "max_length": 77, "pooling": "eot",
+                                        "normalize": False, "null_condition": "zeros"}
+    report = json.loads(capsys.readouterr().out.split("\nimported T2M-GPT")[0])
+    assert report["parity"]["text_encoder"]["max_abs_diff"] <= 1e-5
+    assert check_clip_text_graph(out, small_clip_archive) <= 1e-5
+    assert "QuickGELU" in (out / "MODEL_CARD.md").read_text()
+    check_end_to_end(out, small_release, {**SMALL_VQ}, SMALL_GPT, steps=10)
+
+
+def test_a_wrong_clip_file_is_one_line_and_checked_first(small_release, small_clip_archive, tmp_path, capsys):
+    """Exit 2 with one line naming the key or shape; the CLIP file is read before the slow checkpoint loads
+    (here the checkpoints do not even exist)."""
+    absent = {name: tmp_path / "absent" / name for name in small_release}
+    state = {k: v for k, v in openai_clip_state(**SMALL_CLIP).items() if k != "transformer.resblocks.1.ln_2.bias"}
+    missing = save_torchscript_archive(state, tmp_path / "missing.pt")
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(small_clip_archive.read_bytes()[:100_000])
+    cases = {missing: "missing tensor 'transformer.resblocks.1.ln_2.bias' [64]",
+             truncated: "not a complete PyTorch file", small_release["net_last.pth"]: "holds a dict with keys ['net']"}
+    for clip, message in cases.items():
+        assert run_import(absent, clip, tmp_path / "o") == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and message in err and str(clip) in err, err
 
 
 @pytest.mark.slow
@@ -196,3 +221,13 @@ def test_full_release_shapes_import_end_to_end(tmp_path, clip_sized_text_bundle)
     assert checks.parity["gpt_step"]["codes_identical"] and checks.parity["gpt_step"]["max_abs_logit_diff"] <= 1e-4
     check_end_to_end(out, files, {"width": 512, "code_dim": 512, "nb_code": 512, "down_t": 2, "depth": 3},
                      {"codebook": 512, "embed": 1024, "layers": (9, 9), "block": 51, "text_dim": 512}, steps=50)
+
+
+@pytest.mark.slow
+def test_full_vit_b_32_text_tower_through_import(small_release, tmp_path, capsys):
+    """--clip at OpenAI's ViT-B/32 text sizes (width 512, 12 layers, 8 heads; random values, the release's dtypes)."""
+    text = {k: VIT_B_32_TEXT[k] for k in ("width", "layers", "embed_dim")}
+    clip = save_torchscript_archive(openai_clip_state(**text, seed=6), tmp_path / "ViT-B-32.pt")
+    out = tmp_path / "imported"
+    assert run_import(small_release, clip, out) == 0, capsys.readouterr().err
+    assert check_clip_text_graph(out, clip) <= 1e-5

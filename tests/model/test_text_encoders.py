@@ -1,25 +1,18 @@
-"""Text encoders: MiniLM features as sentence-transformers computes them, the tokenizer file, CLIP's absence, the cache."""
+"""Text encoders: MiniLM features as sentence-transformers computes them, the tokenizer file, the cache (CLIP:
+tests/model/test_clip_text.py)."""
 from __future__ import annotations
 
-import importlib.util
 import os
 
 import numpy as np
 import pytest
 import torch
 
-from t2m.model.networks.text_encoders import (
-    OPEN_CLIP_MISSING,
-    ClipEncoder,
-    TextEncoder,
-    cache_text_features,
-    get_text_encoder,
-)
+from t2m.model.networks.text_encoders import TextEncoder, cache_text_features, get_text_encoder
 
 torch.set_num_threads(1)
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-HAS_OPEN_CLIP = importlib.util.find_spec("open_clip") is not None
 TEXTS = ["a person walks forward", "someone waves with the left hand while jumping up and down", "bow"]
 
 
@@ -68,32 +61,6 @@ def test_export_module_maps_ids_and_mask_to_the_features(minilm):
     assert np.allclose(out, minilm.encode(TEXTS), atol=1e-6)
 
 
-@pytest.mark.skipif(HAS_OPEN_CLIP, reason="open_clip_torch is installed")
-def test_clip_without_open_clip_raises_a_clear_error(tmp_path):
-    with pytest.raises(ImportError, match="open_clip_torch not installed"):
-        ClipEncoder(tmp_path / "ViT-B-32.pt")
-    with pytest.raises(ValueError, match="clip-weights"):
-        get_text_encoder("clip")
-
-
-@pytest.mark.clip
-@pytest.mark.skipif(not HAS_OPEN_CLIP, reason=OPEN_CLIP_MISSING)
-def test_clip_features_are_512_and_not_normalised(tmp_path):
-    """Through the local-weights path: T2M_CLIP_WEIGHTS if set, else random ViT-B/32 weights saved here (no CLIP
-    weights can be downloaded in this environment, so the random ones test the loading and encoding path only)."""
-    weights = os.environ.get("T2M_CLIP_WEIGHTS")
-    if not weights:
-        import open_clip
-        import torch
-
-        weights = str(tmp_path / "ViT-B-32-random.pt")
-        torch.save(open_clip.create_model("ViT-B-32", pretrained=None).state_dict(), weights)
-    encoder = get_text_encoder("clip", weights=weights)
-    features = encoder.encode(TEXTS)
-    assert features.shape == (3, 512) and features.dtype == np.float32
-    assert not np.allclose(np.linalg.norm(features, axis=1), 1.0, atol=1e-3)
-
-
 def test_unknown_encoder_name():
     with pytest.raises(ValueError, match="unknown text encoder"):
         get_text_encoder("bert-large")
@@ -122,7 +89,7 @@ class CountingEncoder(TextEncoder):
 
 
 class FakeReader:
-    ids = ["a", "b"]
+    ids = ("a", "b")
 
     def captions(self, clip_id: str) -> list[str]:
         return {"a": ["walk", "run fast"], "b": ["walk", "a jump"]}[clip_id]

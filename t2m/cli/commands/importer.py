@@ -4,8 +4,9 @@
         --clip ViT-B-32.pt -o models/t2m-gpt
 
 Sizes are read from tensor shapes; attention heads are assumed to be embed / 64 (16 for the release) unless
---heads is given. The text encoder is CLIP ViT-B/32 (optional extra [clip]); --text-encoder-bundle DIR reuses
-the 512-d text graph and tokenizer of an existing bundle instead (e.g. an earlier import).
+--heads is given. The text encoder is OpenAI's CLIP ViT-B/32 from --clip ViT-B-32.pt (the TorchScript file that
+OpenAI's clip.load downloads, or a state dict in its key layout); --text-encoder-bundle DIR reuses the 512-d text
+graph and tokenizer of an existing bundle instead (e.g. an earlier import).
 """
 from __future__ import annotations
 
@@ -21,10 +22,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t2m = sources.add_parser("t2m-gpt", help="T2M-GPT (net_last.pth + net_best_fid.pth)",
                              description=(__doc__ or "").strip().splitlines()[0])
     t2m.add_argument("--vq", type=Path, required=True, metavar="net_last.pth", help="VQ-VAE checkpoint {'net': ...}")
-    t2m.add_argument("--gpt", type=Path, required=True, metavar="net_best_fid.pth", help="GPT checkpoint {'trans': ...}")
+    t2m.add_argument("--gpt", type=Path, required=True, metavar="net_best_fid.pth",
+                     help="GPT checkpoint {'trans': ...}")
     t2m.add_argument("--mean", type=Path, required=True, help="mean.npy used to de-normalise (evaluator meta)")
     t2m.add_argument("--std", type=Path, required=True, help="std.npy used to de-normalise (evaluator meta)")
-    t2m.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt", help="CLIP ViT-B/32 weights (local file)")
+    t2m.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt",
+                     help="OpenAI's CLIP ViT-B/32 weights (local file)")
     t2m.add_argument("--text-encoder-bundle", type=Path, default=None, metavar="DIR",
                      help="reuse text_encoder.onnx + tokenizer.json of this bundle instead of --clip")
     t2m.add_argument("--heads", type=int, default=None, help="attention heads (default embed / 64)")

@@ -1,7 +1,8 @@
 """`t2m train vq|gpt|evaluator`: the training entry points (torch is imported only when one runs).
 
-Each trainer module (t2m.model.training.train_vq, t2m.model.training.train_gpt, t2m.model.training.train_evaluator) exposes
-`add_arguments(parser)` and `main(args)`; this command only wires them to sub-commands.
+Each trainer module (t2m.model.training.train_vq, t2m.model.training.train_gpt,
+t2m.model.training.train_evaluator) exposes `add_arguments(parser)` and `main(args)`; this command only wires them
+to sub-commands.
 """
 from __future__ import annotations
 

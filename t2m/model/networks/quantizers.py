@@ -206,7 +206,8 @@ class ResidualQuantizer(nn.Module):
         return quantized, codes, loss, perplexity
 
     def codes_to_latent(self, codes: torch.Tensor) -> torch.Tensor:
-        """[B, T, R'] (R' <= R, first R' layers) or [B, T] (first layer only) -> [B, T, D], layers summed; -1 = unused."""
+        """[B, T, R'] (R' <= R, first R' layers) or [B, T] (first layer only) -> [B, T, D], layers summed;
+        -1 = unused."""
         if codes.dim() == 2:
             codes = codes.unsqueeze(-1)
         latent = self._layer_latent(0, codes[..., 0])

