@@ -28,9 +28,14 @@ import t2m
 REPO = Path(__file__).resolve().parents[1]
 
 
+def _clean_env() -> dict[str, str]:
+    """This environment minus anything that would let the fresh venv see the repository (PYTHONPATH)."""
+    return {**{k: v for k, v in os.environ.items() if k != "PYTHONPATH"}, "PYTHONNOUSERSITE": "1"}
+
+
 def _run(*command: str | Path, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
     result = subprocess.run([str(part) for part in command], cwd=cwd, capture_output=True, text=True,
-                            timeout=timeout, env={**os.environ, "PYTHONNOUSERSITE": "1"})
+                            timeout=timeout, env=_clean_env())
     assert result.returncode == 0, f"{command}: {result.stderr[-3000:]}"
     return result
 
@@ -93,7 +98,7 @@ def test_serve_from_anywhere_with_the_embedded_model(installed):
         port = probe.getsockname()[1]
     server = subprocess.Popen([str(bin_dir / "t2m"), "serve", "--host", "127.0.0.1", "--port", str(port)],
                               cwd=elsewhere, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                              env={**os.environ, "PYTHONNOUSERSITE": "1"})
+                              env=_clean_env())
     try:
         health = _wait_ready(f"http://127.0.0.1:{port}/health", server)
         assert health["model"]["name"] == "t2m-bandai-minilm" and health["service_version"] == t2m.__version__

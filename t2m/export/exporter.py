@@ -242,10 +242,9 @@ def _export_into(
         try:
             quantize_graph(fp32_copy, out_dir / file)
             if key == "gpt_step":
-                report = gpt_int8_report(fp32_copy, out_dir / file, manifest)
+                checks.int8[key] = asdict(gpt_int8_report(fp32_copy, out_dir / file, manifest))
             else:
-                report = text_int8_report(fp32_copy, out_dir / file, out_dir / "tokenizer.json")
-            checks.int8[key] = asdict(report)
+                checks.int8[key] = asdict(text_int8_report(fp32_copy, out_dir / file, out_dir / "tokenizer.json"))
         finally:
             fp32_copy.unlink(missing_ok=True)
         manifest["quantization"][key] = INT8_LABEL
@@ -355,7 +354,8 @@ def export_from_runs(
     vq = load_model(vq_run, expect_kind="vq")
     gpt = load_model(gpt_run, expect_kind="gpt")
     if text_source is None:  # built last: loading a text encoder is the slow part
-        text_source = clip_text_source(clip_weights) if kind == "clip" else minilm_text_source()
+        text_source = (clip_text_source(clip_weights) if kind == "clip" and clip_weights is not None
+                       else minilm_text_source())
     return export_bundle(
         out_dir, vq=vq, gpt=gpt, mean=mean, std=std, text_source=text_source,
         name=name or f"t2m-{training_data['name']}-{kind}", version=version,

@@ -219,13 +219,13 @@ def import_t2m_gpt(
     """The whole import: checkpoints -> our modules -> a verified bundle (guidance off, no unconditional branch)."""
     if clip_weights is not None and text_encoder_bundle is not None:
         raise ValueError("pass either --clip or --text-encoder-bundle, not both")
-    if clip_weights is None and text_encoder_bundle is None:
-        raise ValueError(CLIP_REQUIRED)
     # the text encoder first: a wrong CLIP file is refused before the slow checkpoint loads
     if clip_weights is not None:
         text_source = clip_text_source(clip_weights)
-    else:
+    elif text_encoder_bundle is not None:
         text_source = bundle_text_source(text_encoder_bundle)
+    else:  # unreachable: refused above; keeps the types narrow
+        raise ValueError(CLIP_REQUIRED)
     models = load_release(vq_path, gpt_path, mean_path, std_path, heads, allow_pickle)
     notes = (
         "## Imported weights\n\n"

@@ -48,6 +48,11 @@ class EMAResetQuantizer(nn.Module):
     the whole codebook alive. The loss is the commitment term ||x - sg(q)||^2.
     """
 
+    codebook: torch.Tensor
+    code_sum: torch.Tensor
+    code_count: torch.Tensor
+    initialized: torch.Tensor
+
     def __init__(self, nb_code: int, code_dim: int, mu: float = 0.99, reset_threshold: float = 1.0) -> None:
         super().__init__()
         self.nb_code = nb_code
@@ -121,6 +126,8 @@ class PlainQuantizer(nn.Module):
     quantiser-loss weight of 1 (train_vq picks that for 'plain'). The codebook starts as random latents of
     the first training batch: a random init far from the encoder's scale leaves most codes unused.
     """
+
+    initialized: torch.Tensor
 
     def __init__(self, nb_code: int, code_dim: int, beta: float = 0.25) -> None:
         super().__init__()
@@ -217,5 +224,7 @@ class ResidualQuantizer(nn.Module):
 
     def _layer_latent(self, index: int, codes: torch.Tensor) -> torch.Tensor:
         """One layer's vectors; a code of -1 (layer unused, as quantiser dropout writes) contributes zeros."""
-        used = (codes >= 0).unsqueeze(-1).to(self.layers[index].codebook.dtype)
-        return self.layers[index].codes_to_latent(codes.clamp(min=0)) * used
+        layer = self.layers[index]
+        assert isinstance(layer, EMAResetQuantizer)
+        used = (codes >= 0).unsqueeze(-1).to(layer.codebook.dtype)
+        return layer.codes_to_latent(codes.clamp(min=0)) * used
