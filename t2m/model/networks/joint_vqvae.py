@@ -90,15 +90,20 @@ class ResBlock2d(nn.Module):
         return x + self.conv2(F.relu(self.conv1(F.relu(x))))
 
 
-class Resnet2D(nn.Module):
-    """``depth`` residual blocks, dilations largest first (9, 3, 1)."""
+class Stack(nn.Module):
+    """Layers in sequence, kept under the name ``model`` as in the released key layout (``encoder2d.model.0``)."""
 
-    def __init__(self, width: int, depth: int, dilation_growth: int) -> None:
+    def __init__(self, layers: list[nn.Module]) -> None:
         super().__init__()
-        self.model = nn.Sequential(*(ResBlock2d(width, dilation_growth**i) for i in reversed(range(depth))))
+        self.model = nn.Sequential(*layers)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.model(x)
+
+
+def resnet2d(config: JointVQConfig) -> Stack:
+    """``depth`` residual blocks, dilations largest first (9, 3, 1)."""
+    return Stack([ResBlock2d(config.width, config.dilation_growth**i) for i in reversed(range(config.depth))])
 
 
 def _halves_joints(config: JointVQConfig, block: int, decoder: bool) -> bool:
@@ -106,44 +111,32 @@ def _halves_joints(config: JointVQConfig, block: int, decoder: bool) -> bool:
     return block >= config.down_t - config.down_j if decoder else block < config.down_j
 
 
-class Encoder2d(nn.Module):
+def encoder2d(config: JointVQConfig) -> Stack:
     """[B, 12, T, J'] -> [B, code_dim, T / 2**down_t, J' / 2**down_j]."""
-
-    def __init__(self, config: JointVQConfig) -> None:
-        super().__init__()
-        w = config.width
-        layers: list[nn.Module] = [nn.Conv2d(PER_JOINT, w, 3, 1, 1), nn.ReLU()]
-        for block in range(config.down_t):
-            # kernel 4 stride 2 halves an axis; kernel 3 stride 1 keeps it (padding 1 either way)
-            halve = _halves_joints(config, block, decoder=False)
-            down = nn.Conv2d(w, w, (4, 4 if halve else 3), (2, 2 if halve else 1), 1)
-            layers.append(nn.Sequential(down, Resnet2D(w, config.depth, config.dilation_growth)))
-        layers.append(nn.Conv2d(w, config.code_dim, 3, 1, 1))
-        self.model = nn.Sequential(*layers)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.model(x)
+    w = config.width
+    layers: list[nn.Module] = [nn.Conv2d(PER_JOINT, w, 3, 1, 1), nn.ReLU()]
+    for block in range(config.down_t):
+        # kernel 4 stride 2 halves an axis; kernel 3 stride 1 keeps it (padding 1 either way)
+        halve = _halves_joints(config, block, decoder=False)
+        down = nn.Conv2d(w, w, (4, 4 if halve else 3), (2, 2 if halve else 1), 1)
+        layers.append(nn.Sequential(down, resnet2d(config)))
+    layers.append(nn.Conv2d(w, config.code_dim, 3, 1, 1))
+    return Stack(layers)
 
 
-class Decoder2d(nn.Module):
+def decoder2d(config: JointVQConfig) -> Stack:
     """[B, code_dim, T', C] -> [B, 12, T' * 2**down_t, C * 2**down_j]."""
-
-    def __init__(self, config: JointVQConfig) -> None:
-        super().__init__()
-        w = config.width
-        layers: list[nn.Module] = [nn.Conv2d(config.code_dim, w, 3, 1, 1), nn.ReLU()]
-        for block in range(config.down_t):
-            joint_scale = 2.0 if _halves_joints(config, block, decoder=True) else 1.0
-            layers.append(nn.Sequential(
-                Resnet2D(w, config.depth, config.dilation_growth),
-                nn.Upsample(scale_factor=(2.0, joint_scale), mode="nearest"),
-                nn.Conv2d(w, w, 3, 1, 1),
-            ))
-        layers += [nn.Conv2d(w, w, 3, 1, 1), nn.ReLU(), nn.Conv2d(w, PER_JOINT, 3, 1, 1)]
-        self.model = nn.Sequential(*layers)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.model(x)
+    w = config.width
+    layers: list[nn.Module] = [nn.Conv2d(config.code_dim, w, 3, 1, 1), nn.ReLU()]
+    for block in range(config.down_t):
+        joint_scale = 2.0 if _halves_joints(config, block, decoder=True) else 1.0
+        layers.append(nn.Sequential(
+            resnet2d(config),
+            nn.Upsample(scale_factor=(2.0, joint_scale), mode="nearest"),
+            nn.Conv2d(w, w, 3, 1, 1),
+        ))
+    layers += [nn.Conv2d(w, w, 3, 1, 1), nn.ReLU(), nn.Conv2d(w, PER_JOINT, 3, 1, 1)]
+    return Stack(layers)
 
 
 class JointVQVAE(nn.Module):
@@ -153,8 +146,8 @@ class JointVQVAE(nn.Module):
         super().__init__()
         self.config = config or JointVQConfig()
         c = self.config
-        self.encoder2d = Encoder2d(c)
-        self.decoder2d = Decoder2d(c)
+        self.encoder2d = encoder2d(c)
+        self.decoder2d = decoder2d(c)
         self.quantizer2d = ResidualQuantizer(c.nb_code, c.code_dim, c.residual_layers, c.quantizer_dropout, c.ema_mu)
 
     @property

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -19,33 +20,24 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from t2m.model.data.balancing import BALANCE_POWER_HELP
+from t2m.model.training import run_options
 
 if TYPE_CHECKING:
     import torch
 
     from t2m.model.data.token_maps import TokenMapDataset
     from t2m.model.networks.token_transformer import TokenTransformerConfig
-    from t2m.model.training.loop import LoopSettings
 
 VQ_KINDS = ("joint_vq", "vq")
+# loss_fn(model, batch, cond, generator) -> (loss, metrics)
+LossFn = Callable[[Any, dict, Any, Any], tuple[Any, dict[str, float]]]
 
 
 def add_arguments(parser: argparse.ArgumentParser, cond_drop: float) -> None:
     """The options of both transformer trainers (sizes default to a 2-core CPU budget)."""
-    parser.add_argument("--data", required=True, help="dataset directory (HumanML3D layout)")
+    run_options.add_schedule_arguments(parser, steps=4000, batch_size=32, weight_decay=1e-5)
     parser.add_argument("--vq", required=True, help="run directory of a trained joint VQ (2D) or residual 1D VQ")
-    parser.add_argument("--out", required=True, help="run directory for checkpoints and logs")
-    parser.add_argument("--steps", type=int, default=4000)
-    parser.add_argument("--batch-size", type=int, default=32)
-    parser.add_argument("--lr", type=float, default=2e-4)
-    parser.add_argument("--weight-decay", type=float, default=1e-5)
-    parser.add_argument("--warmup-steps", type=int, default=500)
-    parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
-    parser.add_argument("--lr-gamma", type=float, default=0.1)
-    parser.add_argument("--text-encoder", choices=("minilm", "clip"), default="minilm")
-    parser.add_argument("--clip-weights", default=None,
-                        help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
-    parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
+    run_options.add_text_arguments(parser)
     parser.add_argument("--codes-cache", default=None,
                         help="directory of the VQ's per-clip codes, reused when made by the same VQ (default <out>)")
     parser.add_argument("--latent", type=int, default=256, help="transformer width")
@@ -65,12 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser, cond_drop: float) -> None:
     parser.add_argument("--cond-noise", type=float, default=0.0,
                         help="largest relative noise added to the text feature (0 = off; see train_gpt)")
     parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
-    parser.add_argument("--log-every", type=int, default=50)
-    parser.add_argument("--val-every", type=int, default=500)
-    parser.add_argument("--save-every", type=int, default=500)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--resume", action="store_true", help="continue from <out>/resume.pt")
+    run_options.add_bookkeeping_arguments(parser)
 
 
 @dataclass
@@ -113,7 +100,6 @@ def prepare_data(args: argparse.Namespace, out: Path, min_layers: int = 1) -> To
     from t2m.model.data.balancing import run_sampling_weights
     from t2m.model.data.datasets import LengthBucketSampler, open_split
     from t2m.model.data.token_maps import TokenMapDataset
-    from t2m.model.networks.text_encoders import cache_text_features, get_text_encoder
     from t2m.model.training.checkpoint import load_model, read_run_config
     from t2m.model.training.train_gpt import encoder_max_length, text_features_dim
 
@@ -131,11 +117,7 @@ def prepare_data(args: argparse.Namespace, out: Path, min_layers: int = 1) -> To
         raise ValueError(f"{args.data}: Mean.npy differs from the VQ run's {vq_mean}; codes would be wrong")
 
     out.mkdir(parents=True, exist_ok=True)
-    encoder_kwargs = {"weights": args.clip_weights} if args.text_encoder == "clip" else {}
-    encoder = get_text_encoder(args.text_encoder, **encoder_kwargs)
-    text_cache = Path(args.text_cache) if args.text_cache else out / "text_features.npz"
-    text_features = cache_text_features([train_reader, val_reader], encoder, text_cache)
-    del encoder
+    text_features = run_options.text_features(args, [train_reader, val_reader], out)
 
     vq = load_model(vq_run, expect_kind=record["kind"])
     cache = Path(args.codes_cache) if args.codes_cache else out
@@ -172,10 +154,8 @@ def prepare_data(args: argparse.Namespace, out: Path, min_layers: int = 1) -> To
 
 def check_arguments(args: argparse.Namespace) -> Path:
     """The argument checks both trainers need; returns --out."""
-    from t2m.model.training.train_joint_vq import check_common_arguments
-
-    out = check_common_arguments(args, ("steps", "batch_size", "latent", "heads", "layers", "ff_size", "max_tokens"),
-                                 ("cond_drop", "balance_power", "dropout"))
+    out = run_options.check_arguments(args, ("latent", "heads", "layers", "ff_size", "max_tokens"),
+                                      ("cond_drop", "balance_power", "dropout"))
     if args.cond_noise < 0:
         raise ValueError(f"--cond-noise must be >= 0, got {args.cond_noise}")
     if args.token_dim is not None and args.token_dim < 1:
@@ -194,17 +174,6 @@ def model_config(args: argparse.Namespace, data: TokenData) -> TokenTransformerC
         ff_size=args.ff_size, dropout=args.dropout, text_dim=data.text_dim,
         code_dim=args.token_dim or int(data.vq_config["code_dim"]), positional="2d" if two_d else "1d",
         spatial_attention=two_d and args.spatial_attention, temporal_attention=two_d and args.temporal_attention,
-    )
-
-
-def loop_settings(args: argparse.Namespace) -> LoopSettings:
-    from t2m.model.training.loop import LoopSettings
-    from t2m.model.training.train_vq import parse_milestones
-
-    return LoopSettings(
-        steps=args.steps, lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.warmup_steps,
-        lr_milestones=parse_milestones(args.lr_milestones), lr_gamma=args.lr_gamma, grad_clip=1.0,
-        log_every=args.log_every, val_every=args.val_every, save_every=args.save_every, seed=args.seed,
     )
 
 
@@ -230,3 +199,27 @@ def validate(model: Any, batches: list[dict[str, torch.Tensor]], loss_fn: Any, s
                 totals[key] = totals.get(key, 0.0) + value * len(batch["length"])
             weight += len(batch["length"])
     return {k: v / max(weight, 1) for k, v in totals.items()}
+
+
+def train(
+    args: argparse.Namespace, build: Callable[[TokenTransformerConfig], Any], loss_fn: LossFn,
+    val_fn: Callable[[Any, list], dict[str, float]], name: str, min_layers: int = 1,
+) -> int:
+    """The whole of `t2m train masked|residual`: checks, data, the model from ``build(config)``, the shared loop."""
+    from t2m.model.training.loop import infinite, run_training, set_seed, set_threads
+
+    out = check_arguments(args)
+    set_threads(args.threads)
+    set_seed(args.seed)
+    data = prepare_data(args, out, min_layers=min_layers)
+    model = build(model_config(args, data))
+
+    def step_fn(net: Any, batch: dict) -> tuple[torch.Tensor, dict[str, float], int]:
+        loss, metrics = loss_fn(net, batch, noisy_condition(batch["cond"], args), None)
+        return loss, metrics, len(batch["length"])
+
+    run_training(
+        model, infinite(data.loader), step_fn, run_options.loop_settings(args, grad_clip=1.0), out,
+        val_fn=lambda net: val_fn(net, data.val_batches), data_info=data.data_info, resume=args.resume, name=name,
+    )
+    return 0

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from t2m.model.data.balancing import BALANCE_POWER_HELP
+from t2m.model.training import run_options
 
 if TYPE_CHECKING:
     import torch
@@ -21,16 +22,8 @@ if TYPE_CHECKING:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset directory (HumanML3D layout)")
-    parser.add_argument("--out", required=True, help="run directory for checkpoints and logs")
-    parser.add_argument("--steps", type=int, default=6000)
-    parser.add_argument("--batch-size", type=int, default=32)
+    run_options.add_schedule_arguments(parser, steps=6000, batch_size=32)
     parser.add_argument("--window", type=int, default=64, help="frames per training window (multiple of 4)")
-    parser.add_argument("--lr", type=float, default=2e-4)
-    parser.add_argument("--weight-decay", type=float, default=0.0)
-    parser.add_argument("--warmup-steps", type=int, default=500)
-    parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
-    parser.add_argument("--lr-gamma", type=float, default=0.1)
     parser.add_argument("--width", type=int, default=64, help="channels of the 2D convolutions")
     parser.add_argument("--code-dim", type=int, default=128)
     parser.add_argument("--nb-code", type=int, default=256, help="codes per quantiser layer")
@@ -45,26 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bone-weight", type=float, default=0.0, help="weight of the bone-length L1 term (metres)")
     parser.add_argument("--commit-weight", type=float, default=0.02)
     parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
-    parser.add_argument("--log-every", type=int, default=50)
-    parser.add_argument("--val-every", type=int, default=1000)
-    parser.add_argument("--save-every", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--resume", action="store_true", help="continue from <out>/resume.pt")
-
-
-def check_common_arguments(args: argparse.Namespace, positive: tuple[str, ...], fractions: tuple[str, ...]) -> Path:
-    """Refuse bad numbers and a second run into a used --out (naming the option); returns --out as a Path."""
-    for name in positive:
-        if getattr(args, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    for name in fractions:
-        if not 0.0 <= getattr(args, name) <= 1.0:
-            raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got {getattr(args, name)}")
-    out = Path(args.out)
-    if (out / "config.json").exists() and not args.resume:
-        raise ValueError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
-    return out
+    run_options.add_bookkeeping_arguments(parser, every=1000)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -74,11 +48,11 @@ def main(args: argparse.Namespace) -> int:
     from t2m.model.data.motion_data import SKELETON_BY_DIM
     from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
     from t2m.model.training.bone_lengths import BoneLengths
-    from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
-    from t2m.model.training.train_vq import parse_milestones, validate_vq, vq_loss, window_loader
+    from t2m.model.training.loop import infinite, run_training, set_seed, set_threads
+    from t2m.model.training.train_vq import validate_vq, vq_loss, window_loader
     from t2m.motion.skeleton import get_skeleton
 
-    out = check_common_arguments(args, ("steps", "batch_size"), ("balance_power", "quantizer_dropout"))
+    out = run_options.check_arguments(args, (), ("balance_power", "quantizer_dropout"))
     if args.window % 4 or args.window < 4:
         raise ValueError(f"--window must be a positive multiple of 4, got {args.window}")
     if args.bone_weight < 0:
@@ -107,11 +81,6 @@ def main(args: argparse.Namespace) -> int:
         loss, metrics = vq_loss(net, batch, args.vel_weight, args.commit_weight, bones, args.bone_weight)
         return loss, metrics, len(batch)
 
-    settings = LoopSettings(
-        steps=args.steps, lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.warmup_steps,
-        lr_milestones=parse_milestones(args.lr_milestones), lr_gamma=args.lr_gamma, grad_clip=None,
-        log_every=args.log_every, val_every=args.val_every, save_every=args.save_every, seed=args.seed,
-    )
     data_info: dict[str, Any] = {
         "data_dir": str(Path(args.data).resolve()), "train_clips": len(train_set), "val_windows": len(val_windows),
         "window": args.window, "batch_size": args.batch_size, "seed": args.seed, "balance_power": args.balance_power,
@@ -120,7 +89,7 @@ def main(args: argparse.Namespace) -> int:
         "normalization": {"mean": "mean.npy", "std": "std.npy"},
     }
     run_training(
-        model, infinite(loader), step_fn, settings, out,
+        model, infinite(loader), step_fn, run_options.loop_settings(args, grad_clip=None), out,
         val_fn=lambda net: validate_vq(net, val_windows, mean, std),
         data_info=data_info, resume=args.resume, name="joint_vq",
     )

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from t2m.model.training import run_options
+
 if TYPE_CHECKING:
     import torch
 
@@ -51,29 +53,14 @@ def length_loss(model: LengthEstimator, cond: torch.Tensor, rows: torch.Tensor) 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset directory (HumanML3D layout)")
-    parser.add_argument("--out", required=True, help="run directory for checkpoints and logs")
-    parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--batch-size", type=int, default=256)
-    parser.add_argument("--lr", type=float, default=1e-3)
-    parser.add_argument("--weight-decay", type=float, default=1e-4)
-    parser.add_argument("--warmup-steps", type=int, default=100)
-    parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
-    parser.add_argument("--lr-gamma", type=float, default=0.1)
+    run_options.add_schedule_arguments(parser, steps=3000, batch_size=256, lr=1e-3, weight_decay=1e-4,
+                                       warmup_steps=100)
     parser.add_argument("--hidden", type=int, default=256, help="first hidden width (then /2, /4)")
     parser.add_argument("--dropout", type=float, default=0.2)
     parser.add_argument("--max-tokens", type=int, default=50, help="largest row count (the masked model's)")
     parser.add_argument("--frames-per-token", type=int, default=4)
-    parser.add_argument("--text-encoder", choices=("minilm", "clip"), default="minilm")
-    parser.add_argument("--clip-weights", default=None,
-                        help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
-    parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
-    parser.add_argument("--log-every", type=int, default=50)
-    parser.add_argument("--val-every", type=int, default=500)
-    parser.add_argument("--save-every", type=int, default=500)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--resume", action="store_true", help="continue from <out>/resume.pt")
+    run_options.add_text_arguments(parser)
+    run_options.add_bookkeeping_arguments(parser)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -82,22 +69,14 @@ def main(args: argparse.Namespace) -> int:
 
     from t2m.model.data.datasets import open_split
     from t2m.model.networks.length_estimator import LengthEstimator, LengthEstimatorConfig
-    from t2m.model.networks.text_encoders import cache_text_features, get_text_encoder
-    from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
-    from t2m.model.training.train_joint_vq import check_common_arguments
-    from t2m.model.training.train_vq import parse_milestones
+    from t2m.model.training.loop import infinite, run_training, set_seed, set_threads
 
-    out = check_common_arguments(args, ("steps", "batch_size", "hidden", "max_tokens", "frames_per_token"),
-                                 ("dropout",))
+    out = run_options.check_arguments(args, ("hidden", "max_tokens", "frames_per_token"), ("dropout",))
     set_threads(args.threads)
     set_seed(args.seed)
     train_reader, val_reader = open_split(args.data, "train"), open_split(args.data, "val")
     out.mkdir(parents=True, exist_ok=True)
-    encoder_kwargs = {"weights": args.clip_weights} if args.text_encoder == "clip" else {}
-    encoder = get_text_encoder(args.text_encoder, **encoder_kwargs)
-    text_cache = Path(args.text_cache) if args.text_cache else out / "text_features.npz"
-    text_features = cache_text_features([train_reader, val_reader], encoder, text_cache)
-    del encoder
+    text_features = run_options.text_features(args, [train_reader, val_reader], out)
     train_x, train_y, _ = caption_lengths(train_reader, text_features, args.frames_per_token, args.max_tokens)
     val_x, val_y, _ = caption_lengths(val_reader, text_features, args.frames_per_token, args.max_tokens)
     val_x, val_y = torch.from_numpy(val_x), torch.from_numpy(val_y)
@@ -117,16 +96,11 @@ def main(args: argparse.Namespace) -> int:
         with torch.no_grad():
             return length_loss(net, val_x, val_y)[1]
 
-    settings = LoopSettings(
-        steps=args.steps, lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.warmup_steps,
-        lr_milestones=parse_milestones(args.lr_milestones), lr_gamma=args.lr_gamma, grad_clip=1.0,
-        log_every=args.log_every, val_every=args.val_every, save_every=args.save_every, seed=args.seed,
-    )
     data_info: dict[str, Any] = {
         "data_dir": str(Path(args.data).resolve()), "train_pairs": len(train_y), "val_pairs": len(val_y),
         "frames_per_token": args.frames_per_token, "max_tokens": args.max_tokens, "seed": args.seed,
         "text_encoder": {"kind": args.text_encoder, "dim": config.text_dim},
     }
-    run_training(model, infinite(loader), step_fn, settings, out, val_fn=val_fn, data_info=data_info,
-                 resume=args.resume, name="length")
+    run_training(model, infinite(loader), step_fn, run_options.loop_settings(args, grad_clip=1.0), out,
+                 val_fn=val_fn, data_info=data_info, resume=args.resume, name="length")
     return 0

@@ -58,21 +58,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from t2m.model.networks.masked_transformer import MaskedTransformer
-    from t2m.model.training.loop import infinite, run_training, set_seed, set_threads
 
-    out = token_models.check_arguments(args)
-    set_threads(args.threads)
-    set_seed(args.seed)
-    data = token_models.prepare_data(args, out)
-    model = MaskedTransformer(token_models.model_config(args, data))
-
-    def step_fn(net: MaskedTransformer, batch: dict) -> tuple[torch.Tensor, dict[str, float], int]:
-        loss, metrics = masked_loss(net, batch, token_models.noisy_condition(batch["cond"], args))
-        return loss, metrics, len(batch["length"])
-
-    run_training(
-        model, infinite(data.loader), step_fn, token_models.loop_settings(args), out,
-        val_fn=lambda net: validate_masked(net, data.val_batches),
-        data_info=data.data_info, resume=args.resume, name="masked",
-    )
-    return 0
+    return token_models.train(args, MaskedTransformer, masked_loss, validate_masked, name="masked")

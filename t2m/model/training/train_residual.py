@@ -16,6 +16,7 @@ if TYPE_CHECKING:
     import torch
 
     from t2m.model.networks.residual_transformer import ResidualTransformer
+    from t2m.model.networks.token_transformer import TokenTransformerConfig
 
 
 def residual_loss(
@@ -58,21 +59,8 @@ def main(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from t2m.model.networks.residual_transformer import ResidualTransformer
-    from t2m.model.training.loop import infinite, run_training, set_seed, set_threads
 
-    out = token_models.check_arguments(args)
-    set_threads(args.threads)
-    set_seed(args.seed)
-    data = token_models.prepare_data(args, out, min_layers=2)
-    model = ResidualTransformer(replace(token_models.model_config(args, data), share_weight=args.share_weight))
+    def build(config: TokenTransformerConfig) -> ResidualTransformer:
+        return ResidualTransformer(replace(config, share_weight=args.share_weight))
 
-    def step_fn(net: ResidualTransformer, batch: dict) -> tuple[torch.Tensor, dict[str, float], int]:
-        loss, metrics = residual_loss(net, batch, token_models.noisy_condition(batch["cond"], args))
-        return loss, metrics, len(batch["length"])
-
-    run_training(
-        model, infinite(data.loader), step_fn, token_models.loop_settings(args), out,
-        val_fn=lambda net: validate_residual(net, data.val_batches),
-        data_info=data.data_info, resume=args.resume, name="residual",
-    )
-    return 0
+    return token_models.train(args, build, residual_loss, validate_residual, name="residual", min_layers=2)
