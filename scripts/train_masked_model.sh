@@ -45,12 +45,12 @@ t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 2
 #   joint-vq width 128, batch 64 x 32 frames, --threads 2:    104 windows/s = 1.63 steps/s
 #   joint-vq width  96, batch 64 x 32 frames, --threads 2:    157 windows/s = 2.45 steps/s   (not chosen)
 #   joint-vq width 128, batch 32 x 64 frames, --threads 2:     51 windows/s = 1.59 steps/s
-#   masked 256/512 x 2 layers per stack, batch 32, --threads 2: 34-40 motions/s = 1.15 steps/s (12/s while another
+#   masked 256/512 x 2 layers per stack, batch 32, --threads 2: 34-44 motions/s = 1.15-1.3 steps/s (12/s while another
 #                                                                job held a core; 23/s with --threads 1)
 #   masked 192/384 x 2 layers per stack, batch 32, --threads 2: 56-61 motions/s = 1.8 steps/s (35/s with 1 thread;
 #                                                                not chosen: we kept the default GPT's width 256,
 #                                                                untested which of the two scores better in 2 h)
-#   residual 256/512 x 2 layers per stack, batch 32, --threads 2: 33-36 motions/s = 1.06 steps/s
+#   residual 256/512 x 2 layers per stack, batch 32, --threads 2: 33-40 motions/s = 1.06-1.2 steps/s
 #   residual 192/384 x 2 layers per stack, batch 32, --threads 2: 51-66 motions/s = 1.7 steps/s
 #   length, batch 256, --threads 2: 62k captions/s (~230 steps/s)
 # Budget: 37 + 3 + 44 + 22 + 1 (captions) + validation/checkpoints ~ 1 h 50 min.

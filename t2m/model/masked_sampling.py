@@ -9,10 +9,14 @@
 Guidance: the condition and the null condition (zeros) run as one batch of 2B rows;
 logits = uncond + s (cond - uncond). Then top-k (keep the k largest logits), temperature, a categorical draw
 with the given generator. Rows past a motion's length are -1 in the output.
+
+``forward`` replaces the model's own forward pass (same arguments and result), so the very same loop can drive an
+exported graph (t2m.export.onnx_masked checks the tokens agree).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 
@@ -61,11 +65,13 @@ def generate_base(
     top_k: int | None = None,
     temperature: float = 1.0,
     generator: torch.Generator | None = None,
+    forward: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """First-layer token maps [B, max(length), C] for texts cond [B, Dt] and row counts length [B] (>= 1)."""
     if steps < 1 or int(length.min()) < 1:
         raise ValueError(f"need steps >= 1 and every length >= 1, got steps={steps}, lengths={length.tolist()}")
     model.eval()
+    forward = forward or model
     c = model.config
     batch, rows = len(length), int(length.max())
     real = model.valid_rows(length, rows)[:, :, None].expand(batch, rows, c.columns).reshape(batch, -1)
@@ -75,7 +81,7 @@ def generate_base(
         counts = remask_count_tensor(length, c.columns, step, steps)
         masked = scores.argsort(dim=1).argsort(dim=1) < counts[:, None]
         tokens = torch.where(masked, torch.full_like(tokens, c.mask_id), tokens)
-        logits = guided_logits(lambda cond_, tokens_, length_: model(tokens_, cond_, length_), cond, guidance,
+        logits = guided_logits(lambda cond_, tokens_, length_: forward(tokens_, cond_, length_), cond, guidance,
                                tokens.view(batch, rows, c.columns), length)
         logits = logits.reshape(batch, rows * c.columns, -1)
         drawn = draw(logits, top_k, temperature, generator)
@@ -95,9 +101,11 @@ def generate_residual(
     top_k: int | None = None,
     temperature: float = 1.0,
     generator: torch.Generator | None = None,
+    forward: Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Layers 1..R-1 on top of base [B, T, C]: codes [B, T, C, R] (-1 = unused layer or past the length)."""
     model.eval()
+    forward = forward or model
     batch, rows, columns = base.shape
     layers = model.config.residual_layers
     codes = torch.full((batch, rows, columns, layers), -1, dtype=torch.long)
@@ -105,7 +113,7 @@ def generate_residual(
     real = model.valid_rows(length, rows)[:, :, None]
     for q in range(1, layers):
         layer = torch.full((batch,), q, dtype=torch.long)
-        logits = guided_logits(lambda cond_, codes_, layer_, length_: model(codes_, layer_, cond_, length_), cond,
+        logits = guided_logits(lambda cond_, codes_, layer_, length_: forward(codes_, layer_, cond_, length_), cond,
                                guidance, codes, layer, length)
         drawn = draw(logits, top_k, temperature, generator)
         codes[..., q] = torch.where(real & (drawn != model.pad_id), drawn, torch.full_like(drawn, -1))

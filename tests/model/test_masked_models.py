@@ -387,3 +387,21 @@ def test_decoding_fills_the_map_and_runs_the_residual_once_per_layer(columns):
     assert calls == ["residual"] * 3  # R - 1 = 3 passes
     assert codes.shape == (2, 7, columns, 4) and torch.equal(codes[..., 0], base)
     assert (codes[1, 3:] == -1).all() and (codes[0] >= -1).all() and (codes[0] < 16).all()
+
+
+def test_encoder_layer_computes_what_torchs_transformer_layer_does():
+    """Released MoMask/MoGenTS weights are nn.TransformerEncoderLayer's (post-LN, GELU): same keys, same function."""
+    from t2m.model.networks.token_transformer import EncoderLayer
+
+    torch.manual_seed(0)
+    config = tiny()
+    reference = torch.nn.TransformerEncoderLayer(32, 2, 64, 0.0, activation="gelu", batch_first=True).eval()
+    layer = EncoderLayer(config).eval()
+    layer.load_state_dict(reference.state_dict(), strict=True)
+    x = torch.randn(3, 7, 32)
+    keys = torch.ones(3, 7, dtype=torch.bool)
+    keys[1, 4:] = False
+    with torch.no_grad():
+        expected = reference(x, src_key_padding_mask=~keys)
+        actual = layer(x, keys)
+    torch.testing.assert_close(actual[keys], expected[keys], atol=1e-5, rtol=1e-5)

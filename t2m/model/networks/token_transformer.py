@@ -14,14 +14,17 @@ MoGenTS: half the channels a sinusoid of the column, half of the row, on every r
 (with dropout) before each stack. Padded rows (``length`` [B] gives the real rows) are masked as keys, so the
 outputs of real tokens do not depend on what sits in the padding, nor on the rest of the batch.
 
-Layers are torch's ``nn.TransformerEncoderLayer`` (post-LN, GELU), whose parameter names are the ones in MoMask's
-and MoGenTS's checkpoints (``seqTransEncoder.layers.{i}.self_attn.in_proj_weight``, ``linear1``, ``norm1``, ...).
+Layers compute what torch's ``nn.TransformerEncoderLayer`` (post-LN, GELU) does, under its parameter names, which
+are the ones in MoMask's and MoGenTS's checkpoints (``seqTransEncoder.layers.{i}.self_attn.in_proj_weight``,
+``linear1``, ``norm1``, ...). They are written out here (:class:`EncoderLayer`) because torch's module traces to an
+ONNX graph whose sequence length is fixed at export.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from t2m.model.networks.config import ConfigDict
@@ -115,11 +118,55 @@ class OutputProcess(nn.Module):
         return self.poseFinal(self.LayerNorm(nn.functional.gelu(self.dense(x))))
 
 
-def _stack(config: TokenTransformerConfig) -> nn.TransformerEncoder:
-    layer = nn.TransformerEncoderLayer(
-        config.latent, config.n_head, config.ff_size, config.dropout, activation="gelu", batch_first=True
-    )
-    return nn.TransformerEncoder(layer, config.n_layer, enable_nested_tensor=False)
+class SelfAttention(nn.Module):
+    """Multi-head self-attention, q/k/v packed in one projection (nn.MultiheadAttention's parameters)."""
+
+    def __init__(self, dim: int, heads: int, dropout: float) -> None:
+        super().__init__()
+        self.heads, self.dropout = heads, dropout
+        self.in_proj_weight = nn.Parameter(nn.init.xavier_uniform_(torch.empty(3 * dim, dim)))
+        self.in_proj_bias = nn.Parameter(torch.zeros(3 * dim))
+        self.out_proj = nn.Linear(dim, dim)
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor | None) -> torch.Tensor:
+        """x [N, S, D]; keys [N, S] bool (False = may not be attended to) or None -> [N, S, D]."""
+        dim = x.shape[-1]
+        qkv = F.linear(x, self.in_proj_weight, self.in_proj_bias).unflatten(-1, (3, self.heads, dim // self.heads))
+        q, k, v = qkv.permute(2, 0, 3, 1, 4)  # each [N, H, S, hd]
+        mask = None if keys is None else keys[:, None, None, :]
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.dropout if self.training else 0.0)
+        return self.out_proj(y.transpose(1, 2).flatten(2))
+
+
+class EncoderLayer(nn.Module):
+    """Post-LN transformer layer: x = norm1(x + attn(x)), then x = norm2(x + linear2(gelu(linear1(x))))."""
+
+    def __init__(self, config: TokenTransformerConfig) -> None:
+        super().__init__()
+        c = config
+        self.self_attn = SelfAttention(c.latent, c.n_head, c.dropout)
+        self.linear1 = nn.Linear(c.latent, c.ff_size)
+        self.linear2 = nn.Linear(c.ff_size, c.latent)
+        self.norm1 = nn.LayerNorm(c.latent)
+        self.norm2 = nn.LayerNorm(c.latent)
+        self.dropout = nn.Dropout(c.dropout)
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor | None) -> torch.Tensor:
+        x = self.norm1(x + self.dropout(self.self_attn(x, keys)))
+        return self.norm2(x + self.dropout(self.linear2(self.dropout(F.gelu(self.linear1(x))))))
+
+
+class EncoderStack(nn.Module):
+    """``layers.{i}``: n_layer EncoderLayers, the same key mask for all."""
+
+    def __init__(self, config: TokenTransformerConfig) -> None:
+        super().__init__()
+        self.layers = nn.ModuleList(EncoderLayer(config) for _ in range(config.n_layer))
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor | None = None) -> torch.Tensor:
+        for layer in self.layers:
+            x = layer(x, keys)
+        return x
 
 
 class TokenMapEncoder(nn.Module):
@@ -142,11 +189,11 @@ class TokenMapEncoder(nn.Module):
         else:
             self.position2d_enc = PositionalEncoding(sinusoid_table_2d(c.max_tokens + prefix_rows, c.columns, c.latent))
         self.position_drop = nn.Dropout(c.dropout)
-        self.seqTransEncoder = _stack(c)
+        self.seqTransEncoder = EncoderStack(c)
         if c.spatial_attention:
-            self.seqTransEncoder2 = _stack(c)
+            self.seqTransEncoder2 = EncoderStack(c)
         if c.temporal_attention:
-            self.seqTransEncoder3 = _stack(c)
+            self.seqTransEncoder3 = EncoderStack(c)
 
     def _init_weights(self) -> None:
         """Small normal init for linear layers and embeddings (as MoMask's transformers do)."""
@@ -190,12 +237,12 @@ class TokenMapEncoder(nn.Module):
         if self.config.positional == "1d":  # MoMask: P prefix tokens, then the T tokens
             x = self._positions(torch.cat([prefix[:, :, None, :], motion], dim=1))
             keys = torch.cat([valid.new_ones(batch, p), valid], dim=1)
-            x = self.seqTransEncoder(x.reshape(batch, p + rows, dim), src_key_padding_mask=~keys)
+            x = self.seqTransEncoder(x.reshape(batch, p + rows, dim), keys)
             return x[:, p:].reshape(batch, rows, columns, dim)
 
         x = self._positions(torch.cat([prefix_rows, motion], dim=1)).reshape(batch, (p + rows) * columns, dim)
         keys = torch.cat([valid.new_ones(batch, p), valid], dim=1)[:, :, None].expand(batch, p + rows, columns)
-        x = self.seqTransEncoder(x, src_key_padding_mask=~keys.reshape(batch, -1))
+        x = self.seqTransEncoder(x, keys.reshape(batch, -1))
         motion = x.reshape(batch, p + rows, columns, dim)[:, p:]
         real = valid[:, :, None, None]
         if self.config.spatial_attention:  # the C tokens of each frame attend to each other
@@ -212,6 +259,6 @@ class TokenMapEncoder(nn.Module):
             if self.config.temporal_mask_cond:  # hide the text row (row 0) from the temporal stack
                 prefix_keys = torch.cat([valid.new_zeros(batch, 1), prefix_keys[:, 1:]], dim=1)
             keys = torch.cat([prefix_keys, valid], dim=1).repeat_interleave(columns, dim=0)
-            temporal = self.seqTransEncoder3(sequences, src_key_padding_mask=~keys)
+            temporal = self.seqTransEncoder3(sequences, keys)
             motion = motion + temporal.view(batch, columns, p + rows, dim).permute(0, 2, 1, 3)[:, p:]
         return motion
