@@ -24,6 +24,7 @@ import torch
 from torch import nn
 
 from t2m.export.graph_export import export_graph, ort_session
+from t2m.export.onnx_decoder import DecoderGraph
 from t2m.export.parity import TensorParity
 from t2m.model.masked_sampling import generate_base, generate_residual
 from t2m.model.networks.joint_vqvae import JointVQVAE
@@ -55,20 +56,8 @@ class ResidualGraph(nn.Module):
         return self.model(codes, layer, cond, length)
 
 
-class JointDecoderGraph(nn.Module):
-    """A joint VQ's decode(codes) * std + mean."""
-
-    def __init__(self, vq: JointVQVAE, mean: np.ndarray, std: np.ndarray) -> None:
-        super().__init__()
-        feat_dim = vq.config.feat_dim
-        mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32))
-        std_t = torch.as_tensor(np.asarray(std, dtype=np.float32))
-        if mean_t.shape != (feat_dim,) or std_t.shape != (feat_dim,):
-            raise ValueError(f"mean/std must be [{feat_dim}] to match the VQ, got "
-                             f"{list(mean_t.shape)}/{list(std_t.shape)}")
-        self.vq = vq
-        self.register_buffer("mean", mean_t)
-        self.register_buffer("std", std_t)
+class JointDecoderGraph(DecoderGraph):
+    """A joint VQ's decode(codes) * std + mean (the 1D decoder graph's checks and buffers, the joint VQ's decode)."""
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:
         return self.vq.decode(codes) * self.std + self.mean

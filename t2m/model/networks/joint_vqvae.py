@@ -20,6 +20,7 @@ and validation apply unchanged.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
@@ -35,6 +36,7 @@ class JointVQConfig(ConfigDict):
     """Hyper-parameters of :class:`JointVQVAE` (MoGenTS's release: W 512, code_dim 1024, 256 codes, 6 layers)."""
 
     label = "joint VQ"
+    quantizer: ClassVar[str] = "residual"  # always (read as VQConfig.quantizer by code that handles both VQs)
 
     feat_dim: int = 263
     width: int = 64
