@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from t2m.export.graph_export import export_graph
+from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.quantizers import EMAResetQuantizer, ResidualQuantizer
 from t2m.model.networks.vqvae import MotionVQVAE
 
@@ -28,7 +29,7 @@ class DecoderGraph(nn.Module):
     mean: torch.Tensor
     std: torch.Tensor
 
-    def __init__(self, vq: MotionVQVAE, mean: np.ndarray, std: np.ndarray) -> None:
+    def __init__(self, vq: MotionVQVAE | JointVQVAE, mean: np.ndarray, std: np.ndarray) -> None:
         super().__init__()
         feat_dim = vq.config.feat_dim
         mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32))
@@ -42,8 +43,14 @@ class DecoderGraph(nn.Module):
         self.register_buffer("mean", mean_t)
         self.register_buffer("std", std_t)
 
+    def _motion_vq(self) -> MotionVQVAE:
+        """The 1D VQ whose quantiser and decoder this graph's own path uses (JointDecoderGraph has its own)."""
+        if not isinstance(self.vq, MotionVQVAE):
+            raise TypeError(f"DecoderGraph decodes a MotionVQVAE, got {type(self.vq).__name__}")
+        return self.vq
+
     def latent(self, codes: torch.Tensor) -> torch.Tensor:
-        quantizer = self.vq.quantizer
+        quantizer = self._motion_vq().quantizer
         if not isinstance(quantizer, ResidualQuantizer):  # ema_reset / plain: one code per step
             return quantizer.codes_to_latent(codes)
         # the ModuleList's items are EMA-reset quantisers (its type only says Module)
@@ -59,7 +66,7 @@ class DecoderGraph(nn.Module):
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:
         latent = self.latent(codes)
-        features = self.vq.decoder(latent.transpose(1, 2)).transpose(1, 2)
+        features = self._motion_vq().decoder(latent.transpose(1, 2)).transpose(1, 2)
         return features * self.std + self.mean
 
 

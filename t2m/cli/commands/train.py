@@ -1,8 +1,8 @@
-"""`t2m train vq|gpt|evaluator`: the training entry points (torch is imported only when one runs).
+"""`t2m train KIND`: the training entry points (torch is imported only when one runs).
 
-Each trainer module (t2m.model.training.train_vq, t2m.model.training.train_gpt,
-t2m.model.training.train_evaluator) exposes `add_arguments(parser)` and `main(args)`; this command only wires them
-to sub-commands.
+Each trainer module (t2m.model.training.train_vq, train_gpt, train_evaluator, train_joint_vq, train_masked,
+train_residual, train_length) exposes `add_arguments(parser)` and `main(args)`; this command only wires them to
+sub-commands.
 """
 from __future__ import annotations
 
@@ -13,6 +13,11 @@ TRAINERS = {
     "vq": ("t2m.model.training.train_vq", "train the motion VQ-VAE on feature windows"),
     "gpt": ("t2m.model.training.train_gpt", "train the text-to-code GPT on a trained VQ's codes"),
     "evaluator": ("t2m.model.training.train_evaluator", "train the text-motion evaluator used by `t2m eval`"),
+    # the masked family (MoGenTS / MoMask)
+    "joint-vq": ("t2m.model.training.train_joint_vq", "train the 2D joint VQ-VAE (time x joint token maps)"),
+    "masked": ("t2m.model.training.train_masked", "train the masked transformer on a VQ's first-layer codes"),
+    "residual": ("t2m.model.training.train_residual", "train the residual transformer on a VQ's later layers"),
+    "length": ("t2m.model.training.train_length", "train the length estimator (free length for masked models)"),
 }
 
 
@@ -25,7 +30,7 @@ def _handler(module_name: str):
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("train", help="train the VQ-VAE, the GPT or the evaluator")
+    parser = subparsers.add_parser("train", help="train the VQ-VAE, the GPT, the evaluator or the masked family")
     kinds = parser.add_subparsers(dest="train_kind", metavar="KIND")
     parser.set_defaults(func=lambda args: parser.print_help() or 2)
     for kind, (module_name, help_text) in TRAINERS.items():

@@ -1,7 +1,7 @@
 """Model checkpoints as docs/contracts.md fixes them.
 
 ``<run_dir>/model.safetensors`` holds the module's state dict (persistent tensors only);
-``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"evaluator", "config": {...}, "step": N, "data": {...}}``
+``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"evaluator"|..., "config": {...}, "step": N, "data": {...}}``
 is enough to rebuild the module: :func:`load_model` does that.
 The training resume state (optimizer, schedule, RNG, quantiser EMA statistics) lives apart in resume.pt.
 """
@@ -20,7 +20,14 @@ if TYPE_CHECKING:
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
-KINDS = ("vq", "gpt", "evaluator")
+# The masked family (issue 14): kind -> (module, model class, config class)
+MASKED_FAMILY = {
+    "joint_vq": ("t2m.model.networks.joint_vqvae", "JointVQVAE", "JointVQConfig"),
+    "masked": ("t2m.model.networks.masked_transformer", "MaskedTransformer", "TokenTransformerConfig"),
+    "residual": ("t2m.model.networks.residual_transformer", "ResidualTransformer", "TokenTransformerConfig"),
+    "length": ("t2m.model.networks.length_estimator", "LengthEstimator", "LengthEstimatorConfig"),
+}
+KINDS = ("vq", "gpt", "evaluator", *MASKED_FAMILY)
 
 
 def model_kind(model: nn.Module) -> str:
@@ -33,6 +40,9 @@ def model_kind(model: nn.Module) -> str:
         return "gpt"
     if type(model).__name__ == "MotionEvaluator":
         return "evaluator"
+    for kind, (module, class_name, _) in MASKED_FAMILY.items():
+        if type(model).__module__ == module and type(model).__name__ == class_name:
+            return kind
     raise ValueError(f"no checkpoint kind for {type(model).__name__}")
 
 
@@ -89,6 +99,12 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
         from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
 
         return MotionEvaluator(EvaluatorConfig(**config))
+    if kind in MASKED_FAMILY:
+        import importlib
+
+        module_name, class_name, config_name = MASKED_FAMILY[kind]
+        module = importlib.import_module(module_name)
+        return getattr(module, class_name)(getattr(module, config_name).from_dict(config))
     raise ValueError(f"unknown checkpoint kind {kind!r}")
 
 

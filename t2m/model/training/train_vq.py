@@ -29,6 +29,7 @@ from t2m.model.data.balancing import BALANCE_POWER_HELP
 if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must not pay for it
     import torch
 
+    from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
     from t2m.model.training.bone_lengths import BoneLengths
 
@@ -44,7 +45,7 @@ def joints_from_feature_dim(feat_dim: int) -> int:
 
 
 def vq_loss(
-    model: MotionVQVAE, x: torch.Tensor, vel_weight: float = 0.5, commit_weight: float = 0.02,
+    model: MotionVQVAE | JointVQVAE, x: torch.Tensor, vel_weight: float = 0.5, commit_weight: float = 0.02,
     bones: BoneLengths | None = None, bone_weight: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The training loss and its parts for a batch of normalised windows [B, T, D]."""
@@ -71,7 +72,7 @@ def vq_loss(
 
 
 def validate_vq(
-    model: MotionVQVAE, windows: torch.Tensor, mean: np.ndarray, std: np.ndarray, batch_size: int = 64,
+    model: MotionVQVAE | JointVQVAE, windows: torch.Tensor, mean: np.ndarray, std: np.ndarray, batch_size: int = 64,
     max_joint_windows: int = 64,
 ) -> dict[str, float]:
     """Reconstruction loss, perplexity over all windows' codes, and MPJPE (mm) on the first windows."""
@@ -83,7 +84,7 @@ def validate_vq(
 
 
 def _validate_vq(
-    model: MotionVQVAE, windows: torch.Tensor, mean: np.ndarray, std: np.ndarray, batch_size: int,
+    model: MotionVQVAE | JointVQVAE, windows: torch.Tensor, mean: np.ndarray, std: np.ndarray, batch_size: int,
     max_joint_windows: int,
 ) -> dict[str, float]:
     import torch

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# The masked family (issue 14, MoGenTS's joint tokens + MoMask's residual design) trained on Bandai-Namco, sized so
+# that all stages take about 2 hours on this project's 2-core CPU machine. NOT run yet: the wall times below are
+# estimates from the throughput measured in short runs (see the end of this file); record the real ones here and in
+# the model card after the run. Run from the repository root in the training environment; every stage writes
+# progress, train.log, log.csv and curves.png in its run directory and can be continued with --resume.
+set -euo pipefail
+DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_default_model.sh, first command)
+RUNS="${RUNS:-runs}"
+TEXT="$RUNS/text_minilm.npz"          # the GPT's caption cache: shared, computed once (~1 min)
+
+# 1. Joint VQ-VAE: 22 joints x 12 features as a 2D map (padded to 24 joints), 2D convolutions width 128, time and
+#    joints halved twice -> 6 token columns per 4 frames; 4 residual quantiser layers of 256 codes (dim 128), EMA +
+#    dead-code reset, quantiser dropout 0.2. Windows, action balance and bone term as the default 1D VQ's.
+#    Measured 1.63 steps/s (104 windows/s) -> ~37 min for 3600 steps.
+t2m train joint-vq --data "$DATA" --out "$RUNS/joint_vq" --steps 3600 --batch-size 64 --window 32 --width 128 \
+  --code-dim 128 --nb-code 256 --down-j 2 --residual-layers 4 --quantizer-dropout 0.2 --lr 2e-4 \
+  --warmup-steps 300 --lr-milestones 0.8 --balance-power 0.5 --bone-weight 0.5 --log-every 50 --val-every 500 \
+  --save-every 500 --threads 2 --seed 0
+
+# 2. Masked transformer over the first layer: 2D positions, joint-time + spatial + temporal stacks of 2 layers
+#    each (width 256, 4 heads, ff 512), MiniLM condition, temporal-spatial cosine masking with BERT replacement,
+#    condition dropout 0.1, condition noise 0.8 and action balance 0.3 as the default GPT's.
+#    Encoding every clip with the VQ once: ~3 min. Measured 1.15 steps/s (37 motions/s) -> ~44 min for 3000 steps.
+t2m train masked --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/masked" --steps 3000 --batch-size 32 \
+  --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 200 \
+  --lr-milestones 0.8 --cond-drop 0.1 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
+  --log-every 25 --val-every 250 --save-every 250 --threads 2 --seed 0
+
+# 3. Residual transformer for layers 1..3, one pass each: the same shape, shared embedding/classifier tables,
+#    condition dropout 0.2; reuses the masked run's codes. Measured 1.06 steps/s -> ~22 min for 1400 steps.
+t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" --steps 1400 --batch-size 32 \
+  --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 100 \
+  --lr-milestones 0.8 --cond-drop 0.2 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
+  --codes-cache "$RUNS/masked" --log-every 25 --val-every 250 --save-every 250 --threads 2 --seed 0
+
+# 4. Length estimator (free length): MiniLM feature -> 0..50 token rows. Measured ~230 steps/s -> ~15 s.
+t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 256 --hidden 256 --max-tokens 50 \
+  --text-cache "$TEXT" --log-every 100 --val-every 500 --save-every 500 --threads 2 --seed 0
+
+# Throughput, measured on 2026-11-25 with short runs (60-80 steps, log.csv samples_per_s of steps 20-80, which
+# count data + forward + backward + update) on the project machine (2 cores, torch 2.13.0+cpu), commands as above
+# with --steps 80 --warmup-steps 10 --val-every 100000 into /tmp; the machine was shared (load average 1.5-2.3 with
+# our own 2 threads), so an idle machine may be somewhat faster:
+#   joint-vq width 128, batch 64 x 32 frames, --threads 2:    104 windows/s = 1.63 steps/s
+#   joint-vq width  96, batch 64 x 32 frames, --threads 2:    157 windows/s = 2.45 steps/s   (not chosen)
+#   joint-vq width 128, batch 32 x 64 frames, --threads 2:     51 windows/s = 1.59 steps/s
+#   masked 256/512 x 2 layers per stack, batch 32, --threads 2: 34-44 motions/s = 1.15-1.3 steps/s (12/s while another
+#                                                                job held a core; 23/s with --threads 1)
+#   masked 192/384 x 2 layers per stack, batch 32, --threads 2: 56-61 motions/s = 1.8 steps/s (35/s with 1 thread;
+#                                                                not chosen: we kept the default GPT's width 256,
+#                                                                untested which of the two scores better in 2 h)
+#   residual 256/512 x 2 layers per stack, batch 32, --threads 2: 33-40 motions/s = 1.06-1.2 steps/s
+#   residual 192/384 x 2 layers per stack, batch 32, --threads 2: 51-66 motions/s = 1.7 steps/s
+#   length, batch 256, --threads 2: 62k captions/s (~230 steps/s)
+# Budget: 37 + 3 + 44 + 22 + 1 (captions) + validation/checkpoints ~ 1 h 50 min.

@@ -1,0 +1,185 @@
+"""ONNX graphs of the masked family, and their parity with PyTorch. The decoding loops stay outside, in the host.
+
+masked.onnx     inputs  tokens int64 [B, T, C]   codes, mask_id = K where still to predict (-1 / anything past length)
+                        cond float32 [B, Dt]     text feature (zeros = the null condition)
+                        length int64 [B]         real token rows
+                output  logits float32 [B, T, C, K]
+residual.onnx   inputs  codes int64 [B, T, C, R] the layers below ``layer`` are read (-1 = unused), the rest ignored
+                        layer int64 [B]          the layer to predict, 1..R-1
+                        cond float32 [B, Dt], length int64 [B]
+                output  logits float32 [B, T, C, K + 1]   (K = pad: "layer unused")
+decoder.onnx    input   codes int64 [B, T, C, R] (a joint VQ; -1 = layer unused)
+                output  features float32 [B, 4T, D]  de-normalised (x * std + mean inside, as the GPT bundle's)
+
+B and T are dynamic; C, R, K and Dt are fixed by the model. Guidance runs the condition and null rows as one
+batch. The graphs are the models' own forward passes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from t2m.export.graph_export import export_graph, ort_session
+from t2m.export.onnx_decoder import DecoderGraph
+from t2m.export.parity import TensorParity
+from t2m.model.masked_sampling import generate_base, generate_residual
+from t2m.model.networks.joint_vqvae import JointVQVAE
+from t2m.model.networks.masked_transformer import MaskedTransformer
+from t2m.model.networks.residual_transformer import ResidualTransformer
+
+DYNAMIC = {0: "batch", 1: "tokens"}
+
+
+class MaskedGraph(nn.Module):
+    """(tokens, cond, length) -> logits, the argument order of masked.onnx."""
+
+    def __init__(self, model: MaskedTransformer) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, tokens: torch.Tensor, cond: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
+        return self.model(tokens, cond, length)
+
+
+class ResidualGraph(nn.Module):
+    """(codes, layer, cond, length) -> logits, the argument order of residual.onnx."""
+
+    def __init__(self, model: ResidualTransformer) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, codes: torch.Tensor, layer: torch.Tensor, cond: torch.Tensor, length: torch.Tensor):
+        return self.model(codes, layer, cond, length)
+
+
+class JointDecoderGraph(DecoderGraph):
+    """A joint VQ's decode(codes) * std + mean (the 1D decoder graph's checks and buffers, the joint VQ's decode)."""
+
+    def forward(self, codes: torch.Tensor) -> torch.Tensor:
+        return self.vq.decode(codes) * self.std + self.mean
+
+
+def example_inputs(model: MaskedTransformer | ResidualTransformer, batch: int = 2, rows: int = 5,
+                   seed: int = 0) -> dict[str, torch.Tensor]:
+    """Inputs of either transformer graph: random codes (some masked), text features, lengths (the last padded)."""
+    c = model.config
+    generator = torch.Generator().manual_seed(seed)
+    length = torch.full((batch,), rows, dtype=torch.long)
+    length[-1] = max(1, rows - 2)
+    cond = torch.randn(batch, c.text_dim, generator=generator)
+    cond[-1] = 0.0 if batch > 1 else cond[-1]  # a null-condition row, as guidance sends
+    if isinstance(model, MaskedTransformer):
+        tokens = torch.randint(0, c.codebook_size, (batch, rows, c.columns), generator=generator)
+        masked = torch.rand(tokens.shape, generator=generator) < 0.5
+        tokens = torch.where(masked, torch.full_like(tokens, c.mask_id), tokens)
+        return {"tokens": tokens, "cond": cond, "length": length}
+    codes = torch.randint(-1, c.codebook_size, (batch, rows, c.columns, c.residual_layers), generator=generator)
+    layer = torch.randint(1, c.residual_layers, (batch,), generator=generator)
+    return {"codes": codes, "layer": layer, "cond": cond, "length": length}
+
+
+def export_masked(model: MaskedTransformer, path: str | Path) -> Path:
+    """Write masked.onnx (see the module docstring)."""
+    inputs = example_inputs(model.eval())
+    return export_graph(
+        MaskedGraph(model).eval(), tuple(inputs.values()), path, input_names=list(inputs), output_names=["logits"],
+        dynamic_axes={"tokens": DYNAMIC, "cond": {0: "batch"}, "length": {0: "batch"}, "logits": DYNAMIC},
+    )
+
+
+def export_residual(model: ResidualTransformer, path: str | Path) -> Path:
+    """Write residual.onnx (see the module docstring)."""
+    inputs = example_inputs(model.eval())
+    return export_graph(
+        ResidualGraph(model).eval(), tuple(inputs.values()), path, input_names=list(inputs), output_names=["logits"],
+        dynamic_axes={"codes": DYNAMIC, "layer": {0: "batch"}, "cond": {0: "batch"}, "length": {0: "batch"},
+                      "logits": DYNAMIC},
+    )
+
+
+def export_joint_decoder(vq: JointVQVAE, mean: np.ndarray, std: np.ndarray, path: str | Path) -> Path:
+    """Write decoder.onnx for a joint VQ (input ``codes`` [B, T, C, R], output ``features`` [B, 4T, D])."""
+    c = vq.eval().config
+    generator = torch.Generator().manual_seed(0)
+    codes = torch.randint(0, c.nb_code, (2, 5, c.columns, c.residual_layers), generator=generator)
+    return export_graph(
+        JointDecoderGraph(vq, mean, std).eval(), (codes,), path, input_names=["codes"], output_names=["features"],
+        dynamic_axes={"codes": DYNAMIC, "features": {0: "batch", 1: "frames"}},
+    )
+
+
+# --- parity -----------------------------------------------------------------------------------------------------
+
+
+def _real_rows(logits: np.ndarray, length: torch.Tensor) -> np.ndarray:
+    """Only the rows before each motion's length count (past it the graph's output is never read)."""
+    return np.concatenate([logits[b, : int(n)].reshape(-1) for b, n in enumerate(length)])
+
+
+def transformer_parity(model: MaskedTransformer | ResidualTransformer, onnx_path: str | Path, batch: int = 2,
+                       rows: int = 7, seed: int = 0) -> TensorParity:
+    """The exported graph vs the model on random inputs of any batch and length (logits of the real rows)."""
+    inputs = example_inputs(model.eval(), batch, rows, seed)
+    with torch.no_grad():
+        expected = model(**inputs).numpy()
+    (actual,) = ort_session(onnx_path).run(None, {k: v.numpy() for k, v in inputs.items()})
+    if actual.shape != expected.shape:
+        raise ValueError(f"{Path(onnx_path).name} returned {list(actual.shape)}, PyTorch {list(expected.shape)}")
+    length = inputs["length"]
+    difference = np.abs(_real_rows(actual, length) - _real_rows(expected, length))
+    return TensorParity(tuple(actual.shape), float(difference.max()))
+
+
+def joint_decoder_parity(vq: JointVQVAE, mean: np.ndarray, std: np.ndarray, onnx_path: str | Path, batch: int = 2,
+                         rows: int = 6, seed: int = 0) -> TensorParity:
+    """decoder.onnx vs vq.decode(codes) * std + mean, on random codes with some unused (-1) upper layers."""
+    c = vq.eval().config
+    generator = torch.Generator().manual_seed(seed)
+    codes = torch.randint(0, c.nb_code, (batch, rows, c.columns, c.residual_layers), generator=generator)
+    codes[0, :, :, 1:] = -1  # the first motion with its first layer only
+    with torch.no_grad():
+        expected = (JointDecoderGraph(vq, mean, std)(codes)).numpy()
+    (actual,) = ort_session(onnx_path).run(None, {"codes": codes.numpy()})
+    if actual.shape != expected.shape:
+        raise ValueError(f"decoder.onnx returned {list(actual.shape)}, PyTorch {list(expected.shape)}")
+    return TensorParity(tuple(actual.shape), float(np.abs(actual - expected).max()))
+
+
+@dataclass
+class DecodeParity:
+    """A full decode (mask stage, then the residual layers) run with PyTorch and with the graphs."""
+
+    shape: tuple[int, ...]
+    tokens_identical: bool
+    differing_tokens: int
+
+
+def decode_parity(masked: MaskedTransformer, residual: ResidualTransformer, masked_path: str | Path,
+                  residual_path: str | Path, length: list[int], steps: int = 10, guidance: float = 4.0,
+                  residual_guidance: float = 5.0, seed: int = 0) -> DecodeParity:
+    """The reference decoding loop (t2m.model.masked_sampling) with the graphs in place of the models: greedy
+    (top-k 1), so any token that differs is a difference in the graphs' logits, not in random draws."""
+    masked_session, residual_session = ort_session(masked_path), ort_session(residual_path)
+
+    def run_masked(tokens: torch.Tensor, cond: torch.Tensor, length_: torch.Tensor) -> torch.Tensor:
+        feeds = {"tokens": tokens.numpy(), "cond": cond.numpy(), "length": length_.numpy()}
+        return torch.from_numpy(masked_session.run(None, feeds)[0])
+
+    def run_residual(codes: torch.Tensor, layer: torch.Tensor, cond: torch.Tensor, length_: torch.Tensor):
+        feeds = {"codes": codes.numpy(), "layer": layer.numpy(), "cond": cond.numpy(), "length": length_.numpy()}
+        return torch.from_numpy(residual_session.run(None, feeds)[0])
+
+    cond = torch.randn(len(length), masked.config.text_dim, generator=torch.Generator().manual_seed(seed))
+    rows = torch.tensor(length)
+    results = []
+    for masked_forward, residual_forward in ((None, None), (run_masked, run_residual)):
+        base = generate_base(masked, cond, rows, steps, guidance, top_k=1, forward=masked_forward)
+        results.append(generate_residual(residual, base, cond, rows, residual_guidance, top_k=1,
+                                         forward=residual_forward))
+    expected, actual = results
+    differing = int((expected != actual).sum())
+    return DecodeParity(tuple(actual.shape), differing == 0, differing)
