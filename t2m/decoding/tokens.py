@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["guided_logits", "sample_tokens"]
+__all__ = ["draw_tokens", "guided_logits", "sample_tokens"]
 
 
 def guided_logits(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndarray:
@@ -15,12 +15,11 @@ def guided_logits(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndar
     return uncond + scale * (cond - uncond)
 
 
-def sample_tokens(logits: np.ndarray, mask_end: np.ndarray, end_id: int, temperature: float, top_k: int | None,
-                  rng: np.random.Generator, greedy: bool = False) -> np.ndarray:
-    """One class per row of `logits` [S, V+1] with End masked where `mask_end`: the argmax when `greedy`, else a
-    draw from softmax(logits / temperature) restricted to the top_k classes (inverse CDF of one uniform)."""
+def draw_tokens(logits: np.ndarray, temperature: float, top_k: int | None, rng: np.random.Generator,
+                greedy: bool = False) -> np.ndarray:
+    """One class per row of `logits` [N, V]: the argmax when `greedy`, else a draw from softmax(logits / temperature)
+    restricted to the top_k classes, by the inverse CDF of one uniform per row (drawn in row order)."""
     logits = np.array(logits, dtype=np.float64)
-    logits[mask_end, end_id] = -np.inf
     if greedy:
         return logits.argmax(axis=1).astype(np.int64)
     logits /= temperature
@@ -32,3 +31,11 @@ def sample_tokens(logits: np.ndarray, mask_end: np.ndarray, end_id: int, tempera
     draws = rng.random(len(logits)) * cdf[:, -1]
     choice = (cdf <= draws[:, None]).sum(axis=1)                  # first index whose cdf exceeds the draw
     return np.minimum(choice, logits.shape[1] - 1).astype(np.int64)
+
+
+def sample_tokens(logits: np.ndarray, mask_end: np.ndarray, end_id: int, temperature: float, top_k: int | None,
+                  rng: np.random.Generator, greedy: bool = False) -> np.ndarray:
+    """The GPT's choice: `draw_tokens` over logits [S, V+1] with End masked where `mask_end`."""
+    logits = np.array(logits, dtype=np.float64)
+    logits[mask_end, end_id] = -np.inf
+    return draw_tokens(logits, temperature, top_k, rng, greedy)

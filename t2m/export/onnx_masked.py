@@ -26,10 +26,11 @@ from torch import nn
 from t2m.export.graph_export import export_graph, ort_session
 from t2m.export.onnx_decoder import DecoderGraph
 from t2m.export.parity import TensorParity
-from t2m.model.masked_sampling import generate_base, generate_residual
+from t2m.model.masked_sampling import generate_token_maps
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.masked_transformer import MaskedTransformer
 from t2m.model.networks.residual_transformer import ResidualTransformer
+from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
 DYNAMIC = {0: "batch", 1: "tokens"}
 
@@ -161,25 +162,14 @@ class DecodeParity:
 def decode_parity(masked: MaskedTransformer, residual: ResidualTransformer, masked_path: str | Path,
                   residual_path: str | Path, length: list[int], steps: int = 10, guidance: float = 4.0,
                   residual_guidance: float = 5.0, seed: int = 0) -> DecodeParity:
-    """The reference decoding loop (t2m.model.masked_sampling) with the graphs in place of the models: greedy
-    (top-k 1), so any token that differs is a difference in the graphs' logits, not in random draws."""
-    masked_session, residual_session = ort_session(masked_path), ort_session(residual_path)
-
-    def run_masked(tokens: torch.Tensor, cond: torch.Tensor, length_: torch.Tensor) -> torch.Tensor:
-        feeds = {"tokens": tokens.numpy(), "cond": cond.numpy(), "length": length_.numpy()}
-        return torch.from_numpy(masked_session.run(None, feeds)[0])
-
-    def run_residual(codes: torch.Tensor, layer: torch.Tensor, cond: torch.Tensor, length_: torch.Tensor):
-        feeds = {"codes": codes.numpy(), "layer": layer.numpy(), "cond": cond.numpy(), "length": length_.numpy()}
-        return torch.from_numpy(residual_session.run(None, feeds)[0])
-
+    """The shared decoding loop (t2m.decoding.masked) over the modules and over the graphs: greedy (top-k 1), so any
+    token that differs is a difference in the graphs' logits, not in random draws."""
+    graphs = (OnnxMaskedStep(ort_session(masked_path), masked.config.columns, masked.config.mask_id),
+              OnnxResidualStep(ort_session(residual_path), residual.config.residual_layers, residual.pad_id))
     cond = torch.randn(len(length), masked.config.text_dim, generator=torch.Generator().manual_seed(seed))
-    rows = torch.tensor(length)
-    results = []
-    for masked_forward, residual_forward in ((None, None), (run_masked, run_residual)):
-        base = generate_base(masked, cond, rows, steps, guidance, top_k=1, forward=masked_forward)
-        results.append(generate_residual(residual, base, cond, rows, residual_guidance, top_k=1,
-                                         forward=residual_forward))
+    results = [generate_token_maps(m, r, cond, length, steps=steps, guidance=guidance,
+                                   residual_guidance=residual_guidance, greedy=True)
+               for m, r in ((masked, residual), graphs)]
     expected, actual = results
     differing = int((expected != actual).sum())
     return DecodeParity(tuple(actual.shape), differing == 0, differing)

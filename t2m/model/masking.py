@@ -19,6 +19,8 @@ import math
 
 import torch
 
+from t2m.decoding.masked import remask_counts as decoding_remask_counts
+
 
 def mask_ratio(tau: torch.Tensor) -> torch.Tensor:
     """gamma(tau) = cos(pi tau / 2): 1 at tau = 0 (all masked), 0 at tau = 1."""
@@ -26,12 +28,11 @@ def mask_ratio(tau: torch.Tensor) -> torch.Tensor:
 
 
 def remask_counts(length: int, steps: int, columns: int = 1) -> list[int]:
-    """Tokens masked before each of the ``steps`` sampling steps, for a map of ``length`` rows x ``columns``."""
+    """Tokens masked before each of the ``steps`` sampling steps, for a map of ``length`` rows x ``columns`` (the
+    decoding loop's own schedule, t2m.decoding.masked.remask_counts)."""
     if steps < 1 or length < 1 or columns < 1:
         raise ValueError(f"steps, length and columns must be >= 1, got {steps}, {length}, {columns}")
-    tau = torch.linspace(0, 1, steps)  # float32, as in the reference sampler
-    counts = torch.round(mask_ratio(tau) * torch.tensor(length * columns)).clamp(min=1)
-    return [int(c) for c in counts]
+    return decoding_remask_counts(length * columns, steps)
 
 
 def _lowest(scores: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:

@@ -10,7 +10,7 @@ import pytest
 import torch
 from synthetic_motion_data import _source_motion
 
-from t2m.model.masked_sampling import generate_base, generate_residual, guided_logits
+from t2m.model.masked_sampling import generate_token_maps
 from t2m.model.masking import (
     bert_replace,
     remask_counts,
@@ -356,37 +356,23 @@ def test_length_sampling_is_seeded_and_never_zero():
     assert torch.equal(a, b) and a.min() >= 1 and a.max() <= 10 and a.dtype == torch.long
 
 
-def test_guidance_formula():
-    def forward(cond, x):
-        return cond.sum(-1, keepdim=True) + x
-
-    cond, x = torch.tensor([[2.0], [1.0]]), torch.tensor([[10.0], [20.0]])
-    out = guided_logits(forward, cond, 3.0, x)
-    torch.testing.assert_close(out, x + 3.0 * cond)  # uncond (cond = 0) + s (cond - uncond)
-    torch.testing.assert_close(guided_logits(forward, cond, 1.0, x), x + cond)
-
-
 @pytest.mark.parametrize("columns", [6, 1])
 def test_decoding_fills_the_map_and_runs_the_residual_once_per_layer(columns):
     torch.manual_seed(0)
     masked, residual = MaskedTransformer(tiny(columns)), ResidualTransformer(tiny(columns))
-    cond, length = torch.randn(2, 8), torch.tensor([7, 3])
+    cond, rows = torch.randn(2, 8), [7, 3]
     calls = []
     masked.register_forward_hook(lambda *args: calls.append("masked"))
     residual.register_forward_hook(lambda *args: calls.append("residual"))
-    base = generate_base(masked, cond, length, steps=4, guidance=2.0, top_k=5,
-                         generator=torch.Generator().manual_seed(0))
-    assert calls == ["masked"] * 4  # one batched pass (cond + null rows) per step
-    assert base.shape == (2, 7, columns)
-    assert (base[0] >= 0).all() and (base[1, :3] >= 0).all() and (base[1, 3:] == -1).all()
-    again = generate_base(masked, cond, length, steps=4, guidance=2.0, top_k=5,
-                          generator=torch.Generator().manual_seed(0))
-    assert torch.equal(base, again)
-    calls.clear()
-    codes = generate_residual(residual, base, cond, length, guidance=3.0, generator=torch.Generator().manual_seed(0))
-    assert calls == ["residual"] * 3  # R - 1 = 3 passes
-    assert codes.shape == (2, 7, columns, 4) and torch.equal(codes[..., 0], base)
-    assert (codes[1, 3:] == -1).all() and (codes[0] >= -1).all() and (codes[0] < 16).all()
+    codes = generate_token_maps(masked, residual, cond, rows, steps=4, guidance=2.0, residual_guidance=3.0, top_k=5,
+                                rng=0)
+    assert calls == ["masked"] * 4 + ["residual"] * 3  # one batched pass (cond + null rows) per step; R - 1 = 3
+    assert codes.shape == (2, 7, columns, 4)
+    assert (codes[0, ..., 0] >= 0).all() and (codes[1, :3, :, 0] >= 0).all() and (codes[1, 3:] == -1).all()
+    assert (codes[0] >= -1).all() and (codes[0] < 16).all()
+    again = generate_token_maps(masked, residual, cond, rows, steps=4, guidance=2.0, residual_guidance=3.0, top_k=5,
+                                rng=0)
+    np.testing.assert_array_equal(codes, again)
 
 
 def test_encoder_layer_computes_what_torchs_transformer_layer_does():

@@ -1,10 +1,11 @@
-"""gpt_step.onnx as the GPT loop's step (t2m.decoding.gpt.GptStep): the only onnxruntime code of the GPT family."""
+"""The decoding loops' steps over onnxruntime: gpt_step.onnx for the GPT loop (t2m.decoding.gpt.GptStep), the masked
+family's masked.onnx and residual.onnx for its loop (t2m.decoding.masked)."""
 from __future__ import annotations
 
 import numpy as np
 import onnxruntime as ort
 
-__all__ = ["OnnxGptStep"]
+__all__ = ["OnnxGptStep", "OnnxMaskedStep", "OnnxResidualStep"]
 
 
 class OnnxGptStep:
@@ -26,3 +27,25 @@ class OnnxGptStep:
             feeds["length"] = length
         logits, present = self.session.run(["logits", "present_kv"], feeds)
         return logits, present
+
+
+class OnnxMaskedStep:
+    """masked.onnx: (tokens [B, T, C], cond [B, Dt], length [B]) -> logits [B, T, C, K]."""
+
+    def __init__(self, session: ort.InferenceSession, columns: int, mask_id: int) -> None:
+        self.session, self.columns, self.mask_id = session, columns, mask_id
+
+    def __call__(self, tokens: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:
+        (logits,) = self.session.run(["logits"], {"tokens": tokens, "cond": cond, "length": length})
+        return logits
+
+
+class OnnxResidualStep:
+    """residual.onnx: (codes [B, T, C, R], layer [B], cond [B, Dt], length [B]) -> logits of layer q."""
+
+    def __init__(self, session: ort.InferenceSession, layers: int, pad_id: int) -> None:
+        self.session, self.layers, self.pad_id = session, layers, pad_id
+
+    def __call__(self, codes: np.ndarray, layer: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:
+        (logits,) = self.session.run(["logits"], {"codes": codes, "layer": layer, "cond": cond, "length": length})
+        return logits
