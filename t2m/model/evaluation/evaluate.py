@@ -588,16 +588,17 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
              f"counts) and root-relative (each frame's pose around its pelvis).", ""]
     lines += _table(summary, single, TABLE1_COLUMNS)
     free = [r for r in single if r.startswith("free_")]
-    if free:
-        errors = ", ".join(f"{_cell(summary[r]['length_mae_tokens'], 2)} at guidance {r.split('_g')[1]}" for r in free)
-        lines += ["", f"Estimated lengths: the length estimator's draws are {errors} tokens (mean absolute error) "
+    if free:  # the same draws for every guidance scale
+        error = _cell(summary[free[0]]["length_mae_tokens"], 2)
+        lines += ["", f"Estimated lengths: the length estimator's draws are {error} tokens (mean absolute error) "
                       f"from the crops' lengths."]
     multi = [r for r in summary if r.startswith("multi_")] + [r for r in ("pasted", "pasted_codes") if r in summary]
     if multi:
+        joined = "token maps concatenated along time" if result.get("family") == "masked" else "codes concatenated"
         lines += ["", f"## Table 2: streams of {options['stream_sentences']} sentences (T2LM's multi-sentence metrics)",
                   "",
                   f"{counts['streams_per_repeat']} streams per repeat; each sentence generated for its own duration, "
-                  f"codes concatenated and decoded once. FIDs against {counts['real_windows']} real "
+                  f"{joined} and decoded once. FIDs against {counts['real_windows']} real "
                   f"{options['window']}-frame windows (stride {options['stride']}); transition windows are centred on "
                   f"the joins. Pelvis Δv: change of the pelvis velocity between consecutive frames (the Real motion "
                   f"row: inside real clips). The last two rows put the same streams' real crops together instead "
