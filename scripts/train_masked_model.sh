@@ -43,8 +43,9 @@ t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 2
 #    Generation runs the service's loop (t2m.decoding.masked): 10 re-masking steps, masked-stage guidance 1 and 4,
 #    residual stage guidance 5 (MoMask's); --length adds rows at the length estimator's draws. The VQ
 #    reconstruction row's root-relative MPJPE is the joint VQ's (the goal: <= 30 mm; the 1-layer 1D VQ: 42 mm).
-#    Estimated from one guided batch of 128 motions at these sizes with random weights (70 s, 2 threads, shared
-#    machine): ~20-30 min per repeat, ~1-1.5 h for 3 repeats.
+#    Estimated from one guided batch of 128 motions of random lengths at these sizes, random weights (70 s, 2 threads,
+#    shared machine; a batch runs at its longest map, eval batches by length, which about halves it): ~40-60 min for
+#    3 repeats. Not run yet.
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/joint_vq" --masked "$RUNS/masked" \
   --residual "$RUNS/residual" --length "$RUNS/length" --guidance 1 4 --steps 10 --residual-guidance 5 --repeats 3 \
   --mm-texts 30 --mm-repeats 10 --streams 100 --text-cache "$TEXT" --threads 2 --out "$RUNS/eval_masked.md"

@@ -208,13 +208,13 @@ def test_stream_maps_are_generated_per_segment_concatenated_along_time_and_decod
     reader_mean, reader_std = np.zeros(263, np.float32), np.ones(263, np.float32)
     models = load_masked_models(masked_runs["evaluator"], masked_runs["joint_vq"], masked_runs["masked"],
                                 masked_runs["residual"], None, MaskedSettings(steps=2), reader_mean, reader_std)
-    generated: list[np.ndarray] = []
+    generated: dict[bytes, np.ndarray] = {}   # text feature -> its map (batches are sorted by length)
     decoded: list[list[np.ndarray]] = []
     real_codes, real_decode = models.family.codes, evaluation.decode
 
-    def codes(*args, **kwargs):
-        maps = real_codes(*args, **kwargs)
-        generated.extend(maps)
+    def codes(cond_, *args, **kwargs):
+        maps = real_codes(cond_, *args, **kwargs)
+        generated.update((row.tobytes(), token_map) for row, token_map in zip(cond_, maps))
         return maps
 
     def decode(models_, codes_, batch_size=128):
@@ -229,8 +229,23 @@ def test_stream_maps_are_generated_per_segment_concatenated_along_time_and_decod
     streams = np.array([[0, 1, 2], [3, 4, 5]])
     result = multi_sentence(models, cond, tokens, streams, 4.0, EvalOptions(progress=False, window=16, stride=8),
                             np.random.default_rng(1), real_window_emb=None)
-    assert [m.shape for m in generated] == [(t, 6, 3) for t in tokens]
+    maps = [generated[row.tobytes()] for row in cond]
+    assert [m.shape for m in maps] == [(t, 6, 3) for t in tokens]
     (stream_codes,) = decoded
     for stream, codes_ in zip(streams, stream_codes):
-        np.testing.assert_array_equal(codes_, np.concatenate([generated[i] for i in stream]))
+        np.testing.assert_array_equal(codes_, np.concatenate([maps[i] for i in stream]))
     assert math.isfinite(result["pelvis_jump_joins"])
+
+
+def test_masked_batches_go_by_length_and_come_back_in_row_order(masked_runs, loop_calls):
+    from t2m.model.evaluation.evaluate import EvalOptions, load_masked_models, sample
+    from t2m.model.evaluation.masked_family import MaskedSettings
+
+    models = load_masked_models(masked_runs["evaluator"], masked_runs["joint_vq"], masked_runs["masked"],
+                                masked_runs["residual"], None, MaskedSettings(steps=2), np.zeros(263, np.float32),
+                                np.ones(263, np.float32))
+    cond = np.random.default_rng(0).normal(size=(3, 384)).astype(np.float32)
+    maps = sample(models, cond, [5, 1, 2], 4.0, EvalOptions(batch_size=2, progress=False), np.random.default_rng(0),
+                  "test")
+    assert [m.shape[0] for m in maps] == [5, 1, 2]
+    assert loop_calls == [2, 1]  # rows 1 and 2 (1 and 2 token rows) together, then row 0 alone

@@ -285,15 +285,20 @@ def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size:
 
 def sample(models: Models, cond: np.ndarray, tokens: Sequence[int] | np.ndarray, guidance: float, options: EvalOptions,
            generator: np.random.Generator, desc: str) -> list[Any]:
-    """The family's codes of exactly `tokens[i]` time steps for each condition row, in batches."""
+    """The family's codes of exactly `tokens[i]` time steps for each condition row, in batches (of similar lengths
+    when the family asks for it), returned in the rows' order."""
     from tqdm import tqdm
 
-    codes: list[Any] = []
+    order = (np.argsort(np.asarray(tokens), kind="stable") if models.family.batch_by_length
+             else np.arange(len(tokens)))
+    codes: list[Any] = [None] * len(tokens)
     starts = range(0, len(tokens), options.batch_size)
     for start in tqdm(starts, desc=desc, unit="batch", leave=False, disable=not options.progress):
-        stop = start + options.batch_size
-        codes += models.family.codes(np.asarray(cond[start:stop], np.float32), [int(t) for t in tokens[start:stop]],
-                                     guidance, options.temperature, options.top_k, generator)
+        rows = order[start:start + options.batch_size]
+        batch = models.family.codes(np.asarray(cond, np.float32)[rows], [int(tokens[i]) for i in rows], guidance,
+                                    options.temperature, options.top_k, generator)
+        for row, row_codes in zip(rows, batch):
+            codes[row] = row_codes
     return codes
 
 

@@ -22,6 +22,7 @@ class CodeFamily(Protocol):
     max_tokens: int                # longest motion it generates, in tokens (4 frames each)
     paths: dict[str, str]          # its runs, in report order ({"gpt": ...} or {"masked": ..., "residual": ...})
     settings: dict[str, Any]       # decoding settings beyond temperature/top-k/guidance, for the report
+    batch_by_length: bool          # batch rows of similar lengths together (every step runs at the batch's longest)
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:

@@ -16,6 +16,7 @@ class GptFamily:
     """Exactly `tokens[i]` codes per text from a MotionGPT (End masked before, forced at, the target)."""
 
     name = "gpt"
+    batch_by_length = False        # rows in the given order: the published tables' draws stay reproducible
 
     def __init__(self, gpt: MotionGPT, text_encoder: str, path: str) -> None:
         self.gpt = gpt
