@@ -38,6 +38,18 @@ t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" -
 t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 256 --hidden 256 --max-tokens 50 \
   --text-cache "$TEXT" --log-every 100 --val-every 500 --save-every 500 --threads 2 --seed 0
 
+# 5. Evaluation (issue 14 item 3): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
+#    GPT's table (scripts/train_default_model.sh; its evaluator run is needed here), so the two tables compare.
+#    Generation runs the service's loop (t2m.decoding.masked): 10 re-masking steps, masked-stage guidance 1 and 4,
+#    residual stage guidance 5 (MoMask's); --length adds rows at the length estimator's draws. The VQ
+#    reconstruction row's root-relative MPJPE is the joint VQ's (the goal: <= 30 mm; the 1-layer 1D VQ: 42 mm).
+#    Estimated from one guided batch of 128 motions of random lengths at these sizes, random weights (70 s, 2 threads,
+#    shared machine; a batch runs at its longest map, eval batches by length, which about halves it): ~40-60 min for
+#    3 repeats. Not run yet.
+t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/joint_vq" --masked "$RUNS/masked" \
+  --residual "$RUNS/residual" --length "$RUNS/length" --guidance 1 4 --steps 10 --residual-guidance 5 --repeats 3 \
+  --mm-texts 30 --mm-repeats 10 --streams 100 --text-cache "$TEXT" --threads 2 --out "$RUNS/eval_masked.md"
+
 # Throughput, measured on 2026-11-25 with short runs (60-80 steps, log.csv samples_per_s of steps 20-80, which
 # count data + forward + backward + update) on the project machine (2 cores, torch 2.13.0+cpu), commands as above
 # with --steps 80 --warmup-steps 10 --val-every 100000 into /tmp; the machine was shared (load average 1.5-2.3 with

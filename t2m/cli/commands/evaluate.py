@@ -1,4 +1,5 @@
-"""`t2m eval`: the papers' Table 1 (and T2LM's multi-sentence metrics) for a VQ-VAE + GPT on a test split."""
+"""`t2m eval`: the papers' Table 1 (and T2LM's multi-sentence metrics) for a VQ-VAE + GPT, or for the masked family
+(joint VQ + masked + residual transformer), on a test split. The family is the token run given: --gpt or --masked."""
 from __future__ import annotations
 
 import argparse
@@ -8,24 +9,39 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "eval", help="evaluate a VQ-VAE + GPT with a trained evaluator (R-precision, FID, MM-Dist, ...)",
+        "eval", help="evaluate a VQ-VAE + GPT (or masked family) with a trained evaluator (R-precision, FID, ...)",
         description="Reports on a split, laid out like the papers' Table 1: Real motion, VQ reconstruction and "
                     "generation at each guidance scale, mean ± 95% interval over repeats; plus T2LM's sliding- and "
-                    "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers).")
+                    "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "
+                    "GPT family: --vq VQ_RUN --gpt RUN. Masked family: --vq JOINT_VQ_RUN --masked RUN --residual RUN "
+                    "[--length RUN], decoded by the service's loop (t2m.decoding.masked).")
     parser.add_argument("--data", required=True, help="dataset directory in HumanML3D layout")
     parser.add_argument("--evaluator", required=True, help="evaluator run directory (t2m train evaluator)")
-    parser.add_argument("--vq", required=True, help="VQ-VAE run directory")
-    parser.add_argument("--gpt", required=True, help="GPT run directory")
+    parser.add_argument("--vq", required=True, help="VQ-VAE run directory (the joint VQ for the masked family)")
+    parser.add_argument("--gpt", default=None, help="GPT run directory (the GPT family)")
+    parser.add_argument("--masked", default=None, help="masked transformer run directory (the masked family)")
+    parser.add_argument("--residual", default=None,
+                        help="masked family: residual transformer run (without it only the first quantiser layer "
+                             "is generated)")
+    parser.add_argument("--length", default=None,
+                        help="masked family: length estimator run; adds rows generated at its estimated lengths")
+    parser.add_argument("--steps", type=int, default=None, help="masked family: re-masking steps (default 10)")
+    parser.add_argument("--residual-guidance", type=float, default=None,
+                        help="masked family: the residual stage's guidance scale (default 5, MoMask's)")
+    parser.add_argument("--residual-top-k", type=int, default=None,
+                        help="masked family: the residual stage's top-k (default: all codes)")
     parser.add_argument("--split", default="test", help="split to evaluate on (default test)")
     parser.add_argument("--repeats", type=int, default=20, help="evaluations averaged, as the papers do (default 20)")
-    parser.add_argument("--guidance", type=float, nargs="+", default=[1.0, 3.0],
-                        help="classifier-free guidance scales, one table row each (default 1 3)")
+    parser.add_argument("--guidance", type=float, nargs="+", default=None,
+                        help="classifier-free guidance scales (the masked family: of its masked stage), one table "
+                             "row each (default 1 3 for the GPT, 1 4 for the masked family: MoMask's scale)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--limit", type=int, default=None, help="use only N clips of the split (quick runs)")
     parser.add_argument("--out", default="eval_report.md", help="markdown report (default eval_report.md)")
     parser.add_argument("--json", default=None, help="raw numbers (default: --out with .json)")
     parser.add_argument("--temperature", type=float, default=1.0, help="sampling temperature (default 1)")
-    parser.add_argument("--top-k", type=int, default=None, help="sample from the k likeliest codes (default: all)")
+    parser.add_argument("--top-k", type=int, default=None,
+                        help="sample from the k likeliest codes (masked family: its masked stage; default: all)")
     parser.add_argument("--mm-texts", type=int, default=100, help="texts for MModality (default 100)")
     parser.add_argument("--mm-repeats", type=int, default=30, help="motions per MModality text (default 30)")
     parser.add_argument("--streams", type=int, default=None,
@@ -41,6 +57,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_evaluate)
 
 
+DEFAULT_GUIDANCE = {"gpt": [1.0, 3.0], "masked": [1.0, 4.0]}
+MASKED_OPTIONS = ("steps", "residual_guidance", "residual_top_k")   # MaskedSettings fields set from the CLI
+MASKED_RUNS = ("residual", "length")
+
+
+def _family(args: argparse.Namespace) -> str:
+    """The family ("gpt" or "masked") from the token run given; the other family's options are refused."""
+    from t2m.cli.main import CliError
+
+    if (args.gpt is None) == (args.masked is None):
+        raise CliError("give exactly one of --gpt RUN (GPT family) or --masked RUN (masked family)")
+    if args.gpt is not None:
+        for name in (*MASKED_RUNS, *MASKED_OPTIONS):
+            if getattr(args, name) is not None:
+                raise CliError(f"--{name.replace('_', '-')} applies to the masked family (--masked), not to --gpt")
+        return "gpt"
+    if args.steps is not None and args.steps < 1:
+        raise CliError(f"--steps must be at least 1, got {args.steps}")
+    if args.residual_top_k is not None and args.residual_top_k < 1:
+        raise CliError(f"--residual-top-k must be at least 1, got {args.residual_top_k}")
+    if args.residual_guidance is not None and args.residual_guidance < 0:
+        raise CliError(f"--residual-guidance must be >= 0, got {args.residual_guidance}")
+    return "masked"
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from t2m.cli.main import CliError
 
@@ -50,21 +91,30 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise CliError(f"--top-k must be at least 1, got {args.top_k}")
     if args.streams is not None and args.streams < 1:
         raise CliError(f"--streams must be at least 1, got {args.streams}")
+    family = _family(args)
 
     import torch
 
     from t2m.model.data.motion_data import MotionDirectory
-    from t2m.model.evaluation.evaluate import EvalOptions, evaluate, load_models, write_report
+    from t2m.model.evaluation.evaluate import EvalOptions, evaluate, load_masked_models, load_models, write_report
+    from t2m.model.evaluation.masked_family import MaskedSettings
 
     torch.set_num_threads(args.threads)
-    options = EvalOptions(split=args.split, repeats=args.repeats, guidance=tuple(args.guidance), seed=args.seed,
+    guidance = args.guidance or DEFAULT_GUIDANCE[family]
+    options = EvalOptions(split=args.split, repeats=args.repeats, guidance=tuple(guidance), seed=args.seed,
                           limit=args.limit, temperature=args.temperature, top_k=args.top_k, mm_texts=args.mm_texts,
                           mm_repeats=args.mm_repeats, streams=args.streams, batch_size=args.batch_size,
                           multi_sentence=not args.no_multi_sentence, progress=not args.quiet)
     options.check()
     started = time.time()
     reader = MotionDirectory(args.data, args.split)
-    models = load_models(args.evaluator, args.vq, args.gpt, reader.mean, reader.std)
+    if family == "gpt":
+        models = load_models(args.evaluator, args.vq, args.gpt, reader.mean, reader.std)
+    else:
+        settings = MaskedSettings(**{name: getattr(args, name) for name in MASKED_OPTIONS
+                                     if getattr(args, name) is not None})
+        models = load_masked_models(args.evaluator, args.vq, args.masked, args.residual, args.length, settings,
+                                    reader.mean, reader.std)
     encoder_kwargs = {"clip": {"weights": args.clip_weights}} if args.clip_weights else None
     result = evaluate(models, reader, options, text_cache=args.text_cache, encoder_kwargs=encoder_kwargs)
     result["data"] = str(args.data)

@@ -1,4 +1,8 @@
-"""`t2m eval`: the papers' evaluation of a VQ-VAE + GPT pair on a test split, with our own evaluator.
+"""`t2m eval`: the papers' evaluation of a VQ-VAE + token model on a test split, with our own evaluator.
+
+The token model is a family (t2m.model.evaluation.family.CodeFamily): the GPT (gpt_family) or the masked
+transformers (masked_family). A family only makes codes for texts and token counts; the VQ decodes them, and
+everything else below is shared, so both families are measured on the same draws with the same evaluator.
 
 Table 1 follows Guo et al. / T2M-GPT: rows Real motion, VQ reconstruction and Generation at each guidance scale;
 columns R-precision top-1/2/3 (32-way), FID, MM-Dist, Diversity, MModality, plus MPJPE for the reconstruction.
@@ -38,7 +42,9 @@ from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_t
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 if TYPE_CHECKING:
-    from t2m.model.networks.gpt import MotionGPT
+    from t2m.model.evaluation.family import CodeFamily
+    from t2m.model.evaluation.masked_family import MaskedSettings
+    from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
 
 
@@ -89,40 +95,69 @@ class EvalOptions:
 
 @dataclass
 class Models:
-    """The three trained networks and the statistics the VQ-VAE's outputs are de-normalised with."""
+    """The evaluator, the VQ-VAE (with the statistics its outputs are de-normalised with) and the family that makes
+    its codes."""
 
     evaluator: MotionEvaluator
-    vq: MotionVQVAE
-    gpt: MotionGPT
+    vq: MotionVQVAE | JointVQVAE
+    family: CodeFamily
     vq_mean: np.ndarray
     vq_std: np.ndarray
     evaluator_text: str = "minilm"
-    gpt_text: str = "minilm"
     paths: dict[str, str] = field(default_factory=dict)
+
+
+def _load_evaluator_and_vq(evaluator_run: str | Path, vq_run: str | Path, vq_kinds: Sequence[str],
+                           data_mean: np.ndarray, data_std: np.ndarray
+                           ) -> tuple[MotionEvaluator, MotionVQVAE | JointVQVAE, np.ndarray, np.ndarray]:
+    """The evaluator and a VQ of one of `vq_kinds`; the VQ statistics come from its run (mean.npy/std.npy) or else
+    the dataset."""
+    from t2m.model.evaluation.masked_family import load_run
+    from t2m.model.networks.joint_vqvae import JointVQVAE
+    from t2m.model.networks.vqvae import MotionVQVAE
+    from t2m.model.training.checkpoint import load_model, read_run_config
+
+    evaluator = load_model(evaluator_run, expect_kind="evaluator")
+    kind = read_run_config(vq_run)["kind"]
+    kind = kind if kind in vq_kinds else vq_kinds[0]     # another kind: load_model names what it expected
+    vq: MotionVQVAE | JointVQVAE = (load_run(vq_run, kind, JointVQVAE) if kind == "joint_vq"
+                                    else load_run(vq_run, kind, MotionVQVAE))
+    mean, std = data_mean, data_std
+    if (Path(vq_run) / "mean.npy").is_file() and (Path(vq_run) / "std.npy").is_file():
+        mean, std = np.load(Path(vq_run) / "mean.npy"), np.load(Path(vq_run) / "std.npy")
+    return evaluator, vq, np.asarray(mean, np.float32), np.asarray(std, np.float32)
+
+
+def _models(evaluator: MotionEvaluator, vq: MotionVQVAE | JointVQVAE, family: CodeFamily, mean: np.ndarray,
+            std: np.ndarray, evaluator_run: str | Path, vq_run: str | Path) -> Models:
+    if evaluator.config.feature_dim != vq.config.feat_dim or len(mean) != vq.config.feat_dim:
+        raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, VQ {vq.config.feat_dim}, "
+                         f"statistics {len(mean)}")
+    return Models(evaluator, vq, family, mean, std, evaluator_text=evaluator.config.text_encoder,
+                  paths={"evaluator": str(evaluator_run), "vq": str(vq_run), **family.paths})
 
 
 def load_models(evaluator_run: str | Path, vq_run: str | Path, gpt_run: str | Path, data_mean: np.ndarray,
                 data_std: np.ndarray) -> Models:
-    """Load the three checkpoints; the VQ statistics come from its run (mean.npy/std.npy) or else the dataset."""
-    from t2m.model.training.checkpoint import load_model, read_run_config
+    """The GPT family: evaluator, a 1D VQ and a GPT over its codes."""
+    from t2m.model.evaluation.gpt_family import load_gpt_family
 
-    evaluator = load_model(evaluator_run, expect_kind="evaluator")
-    vq = load_model(vq_run, expect_kind="vq")
-    gpt = load_model(gpt_run, expect_kind="gpt")
-    mean, std = data_mean, data_std
-    if (Path(vq_run) / "mean.npy").is_file() and (Path(vq_run) / "std.npy").is_file():
-        mean, std = np.load(Path(vq_run) / "mean.npy"), np.load(Path(vq_run) / "std.npy")
-    if gpt.config.codebook_size != vq.config.nb_code:
-        raise ValueError(f"{gpt_run}: GPT codebook_size {gpt.config.codebook_size} does not match the VQ's "
-                         f"nb_code {vq.config.nb_code} ({vq_run})")
-    if evaluator.config.feature_dim != vq.config.feat_dim or len(mean) != vq.config.feat_dim:
-        raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, VQ {vq.config.feat_dim}, "
-                         f"statistics {len(mean)}")
-    gpt_text = read_run_config(gpt_run).get("data", {}).get("text_encoder", "minilm")
-    gpt_text = str(gpt_text.get("kind", "minilm") if isinstance(gpt_text, dict) else gpt_text)
-    return Models(evaluator, vq, gpt, np.asarray(mean, np.float32), np.asarray(std, np.float32),
-                  evaluator_text=evaluator.config.text_encoder, gpt_text=gpt_text,
-                  paths={"evaluator": str(evaluator_run), "vq": str(vq_run), "gpt": str(gpt_run)})
+    evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
+    family = load_gpt_family(gpt_run, vq.config.nb_code, vq_run)
+    return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
+
+
+def load_masked_models(evaluator_run: str | Path, vq_run: str | Path, masked_run: str | Path,
+                       residual_run: str | Path | None, length_run: str | Path | None, settings: MaskedSettings,
+                       data_mean: np.ndarray, data_std: np.ndarray) -> Models:
+    """The masked family: evaluator, the joint VQ (or MoMask's 1D residual VQ), the masked transformer, the residual
+    transformer and optionally the length estimator."""
+    from t2m.model.evaluation.masked_family import load_masked_family
+
+    evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["joint_vq", "vq"], data_mean,
+                                                      data_std)
+    family = load_masked_family(vq, vq_run, masked_run, residual_run, length_run, settings)
+    return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
 
 
 # ----------------------------------------------------------------------------------------- data and draws
@@ -249,19 +284,21 @@ def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size:
 
 
 def sample(models: Models, cond: np.ndarray, tokens: Sequence[int] | np.ndarray, guidance: float, options: EvalOptions,
-           generator: np.random.Generator, desc: str) -> list[list[int]]:
-    """GPT code sequences of exactly `tokens[i]` codes for each condition row, in batches."""
+           generator: np.random.Generator, desc: str) -> list[Any]:
+    """The family's codes of exactly `tokens[i]` time steps for each condition row, in batches (of similar lengths
+    when the family asks for it), returned in the rows' order."""
     from tqdm import tqdm
 
-    from t2m.model.sampling import sample_codes
-
-    codes: list[list[int]] = []
+    order = (np.argsort(np.asarray(tokens), kind="stable") if models.family.batch_by_length
+             else np.arange(len(tokens)))
+    codes: list[Any] = [None] * len(tokens)
     starts = range(0, len(tokens), options.batch_size)
     for start in tqdm(starts, desc=desc, unit="batch", leave=False, disable=not options.progress):
-        stop = start + options.batch_size
-        codes += sample_codes(models.gpt, torch.from_numpy(np.asarray(cond[start:stop], np.float32)),
-                              [int(t) for t in tokens[start:stop]], guidance=guidance,
-                              temperature=options.temperature, top_k=options.top_k, rng=generator)
+        rows = order[start:start + options.batch_size]
+        batch = models.family.codes(np.asarray(cond, np.float32)[rows], [int(tokens[i]) for i in rows], guidance,
+                                    options.temperature, options.top_k, generator)
+        for row, row_codes in zip(rows, batch):
+            codes[row] = row_codes
     return codes
 
 
@@ -324,8 +361,8 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
 
     options.check()
     clips = read_clips(reader, options.limit)
-    max_frames = min(models.evaluator.config.max_frames, FRAMES_PER_TOKEN * models.gpt.config.max_tokens)
-    texts = TextFeatures([c for cs in clips.captions for c in cs], [models.evaluator_text, models.gpt_text],
+    max_frames = min(models.evaluator.config.max_frames, FRAMES_PER_TOKEN * models.family.max_tokens)
+    texts = TextFeatures([c for cs in clips.captions for c in cs], [models.evaluator_text, models.family.text_encoder],
                          text_cache, encoder_kwargs)
     evaluator = models.evaluator
 
@@ -358,11 +395,12 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
         row["recon"]["mpjpe_mm"] = mpjpe_mm(reference.motions, recon)
         row["recon"]["mpjpe_root_mm"] = mpjpe_mm(reference.motions, recon, root_relative=True)
 
-        cond = texts(models.gpt_text, reference.captions)
+        cond = texts(models.family.text_encoder, reference.captions)
         tokens = reference.tokens
         mm_index = rng.choice(len(clips.ids), min(options.mm_texts, len(clips.ids)), replace=False)
         stream_order = rng.permutation(len(clips.ids))
         streams = stream_order[:n_streams * options.stream_sentences].reshape(n_streams, options.stream_sentences)
+        estimated = models.family.estimate_tokens(cond, generator)
         for guidance in options.guidance:
             name = f"gen_g{guidance:g}"
             codes = sample(models, cond, tokens, guidance, options, generator, f"generate g={guidance:g}")
@@ -376,6 +414,10 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
             mm_emb = embed_motions(evaluator, decode(models, mm_codes, options.batch_size), normalized=False)
             row[name]["mmodality"] = metrics.multimodality(mm_emb.reshape(len(mm_index), options.mm_repeats, -1),
                                                            options.mm_pairs, seed=seed)
+            if estimated is not None:
+                row[f"free_g{guidance:g}"] = estimated_length_metrics(models, cond, estimated, tokens, guidance,
+                                                                      options, generator, text_emb_a, reference_emb,
+                                                                      seed)
             if options.multi_sentence and n_streams > 0:
                 row[f"multi_g{guidance:g}"] = multi_sentence(models, cond, tokens, streams, guidance, options,
                                                              generator, real_window_emb)
@@ -383,10 +425,26 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
             row.update(real_stream_references(models, reference.motions, reference_codes, streams, options,
                                               real_window_emb))
         runs.append(row)
-    return {"options": asdict(options), "models": models.paths,
-            "counts": {"clips": len(clips.ids), "real_windows": len(real_windows), "streams_per_repeat": n_streams,
-                       "max_frames": max_frames},
-            "repeats": runs, "summary": summarise(runs)}
+    result: dict[str, Any] = {"options": asdict(options), "models": models.paths,
+              "counts": {"clips": len(clips.ids), "real_windows": len(real_windows), "streams_per_repeat": n_streams,
+                         "max_frames": max_frames},
+              "repeats": runs, "summary": summarise(runs)}
+    if models.family.settings:
+        result["family"], result["decoding"] = models.family.name, models.family.settings
+    return result
+
+
+def estimated_length_metrics(models: Models, cond: np.ndarray, estimated: Sequence[int], tokens: Sequence[int],
+                             guidance: float, options: EvalOptions, generator: np.random.Generator,
+                             text_emb: np.ndarray, reference_emb: np.ndarray, seed: int) -> dict[str, float]:
+    """Generation at the lengths the family's own estimator drew (a null duration in the service), plus how far
+    those lengths are from the crops' (mean absolute error in tokens)."""
+    codes = sample(models, cond, estimated, guidance, options, generator, f"estimated lengths g={guidance:g}")
+    motions = decode(models, codes, options.batch_size)
+    result = single_motion_metrics(text_emb, embed_motions(models.evaluator, motions, normalized=False),
+                                   reference_emb, options, seed)
+    result["length_mae_tokens"] = float(np.mean(np.abs(np.asarray(estimated) - np.asarray(tokens))))
+    return result
 
 
 def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], streams: np.ndarray, guidance: float,
@@ -397,7 +455,8 @@ def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], stre
     codes = sample(models, cond[flat], np.asarray(tokens)[flat], guidance, options, generator,
                    f"streams g={guidance:g}")
     per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
-    motions = decode(models, [[c for segment in stream for c in segment] for stream in per_stream], options.batch_size)
+    motions = decode(models, [np.concatenate([np.asarray(segment) for segment in stream]) for stream in per_stream],
+                     options.batch_size)
     lengths = [[FRAMES_PER_TOKEN * len(segment) for segment in stream] for stream in per_stream]
     return stream_metrics(models.evaluator, motions, lengths, options, real_window_emb)
 
@@ -473,6 +532,8 @@ def _row_label(row: str) -> str:
     if row == "pasted_codes":
         return "Real crops' VQ codes, decoded once"
     kind, guidance = row.split("_g")
+    if kind == "free":
+        return f"Generation, estimated lengths (guidance={guidance})"
     return f"Generation (guidance={guidance})" if kind == "gen" else f"Streams (guidance={guidance})"
 
 
@@ -494,16 +555,33 @@ def _table(summary: dict[str, dict[str, list[float]]], rows: list[str], columns)
     return lines
 
 
+MODEL_LABELS = {"evaluator": "evaluator", "vq": "VQ", "gpt": "GPT", "masked": "masked transformer",
+                "residual": "residual transformer", "length": "length estimator"}
+
+
+def _models_line(result: dict[str, Any]) -> str:
+    """The runs evaluated; for the masked family also its decoding settings (steps, the residual stage's)."""
+    runs = ", ".join(f"{MODEL_LABELS.get(name, name)} `{path}`" for name, path in result["models"].items())
+    line = f"Models: {runs}."
+    decoding = result.get("decoding")
+    if decoding:
+        residual = (f"residual stage guidance {decoding['residual_guidance']:g}, top-k "
+                    f"{decoding['residual_top_k'] or 'off'}" if decoding.get("residual_stage")
+                    else "no residual stage (first quantiser layer only)")
+        line += (f" Masked decoding (t2m.decoding.masked): {decoding['steps']} re-masking steps, the guidance below is "
+                 f"the masked stage's; {residual}.")
+    return line
+
+
 def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
     """The markdown report: Table 1 (single sentences) and Table 2 (streams of sentences)."""
     summary, options, counts = result["summary"], result["options"], result["counts"]
-    single = ["real", "recon"] + [r for r in summary if r.startswith("gen_")]
+    single = ["real", "recon"] + [r for r in summary if r.startswith(("gen_", "free_"))]
     lines = [f"# {title}", "",
              f"Split `{options['split']}`: {counts['clips']} clips; {options['repeats']} repeats "
              f"(mean ± 95% interval); seed {options['seed']}; sampling temperature {options['temperature']:g}, "
              f"top-k {options['top_k'] or 'off'}.",
-             f"Models: evaluator `{result['models'].get('evaluator')}`, VQ `{result['models'].get('vq')}`, "
-             f"GPT `{result['models'].get('gpt')}`.",
+             _models_line(result),
              "Embeddings come from our own contrastive evaluator (model/evaluator.py), not Guo et al.'s: the numbers "
              "compare our models with each other, not with published tables.", "",
              "## Table 1: text-to-motion (one sentence per motion)", "",
@@ -514,12 +592,18 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
              f"features, in mm: global positions (the root trajectory is integrated from velocities, so its drift "
              f"counts) and root-relative (each frame's pose around its pelvis).", ""]
     lines += _table(summary, single, TABLE1_COLUMNS)
+    free = [r for r in single if r.startswith("free_")]
+    if free:  # the same draws for every guidance scale
+        error = _cell(summary[free[0]]["length_mae_tokens"], 2)
+        lines += ["", f"Estimated lengths: the length estimator's draws are {error} tokens (mean absolute error) "
+                      f"from the crops' lengths."]
     multi = [r for r in summary if r.startswith("multi_")] + [r for r in ("pasted", "pasted_codes") if r in summary]
     if multi:
+        joined = "token maps concatenated along time" if result.get("family") == "masked" else "codes concatenated"
         lines += ["", f"## Table 2: streams of {options['stream_sentences']} sentences (T2LM's multi-sentence metrics)",
                   "",
                   f"{counts['streams_per_repeat']} streams per repeat; each sentence generated for its own duration, "
-                  f"codes concatenated and decoded once. FIDs against {counts['real_windows']} real "
+                  f"{joined} and decoded once. FIDs against {counts['real_windows']} real "
                   f"{options['window']}-frame windows (stride {options['stride']}); transition windows are centred on "
                   f"the joins. Pelvis Δv: change of the pelvis velocity between consecutive frames (the Real motion "
                   f"row: inside real clips). The last two rows put the same streams' real crops together instead "

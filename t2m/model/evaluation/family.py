@@ -1,0 +1,34 @@
+"""What `t2m eval` needs from a model family: codes for these texts and lengths.
+
+Everything else of the evaluation (crops, repeats, metrics, the report) is the same for every family, and decoding
+is the VQ's own `decode` (a 1D VQ takes [T] or [T, R] codes, the joint VQ [T, C, R] maps), so a family is only its
+generation step. Keeping it this small is what lets the GPT and the masked family be compared on exactly the same
+draws and the same evaluator.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+
+class CodeFamily(Protocol):
+    """A generator of VQ codes for text features: the GPT (t2m.model.evaluation.gpt_family) or the masked family
+    (t2m.model.evaluation.masked_family)."""
+
+    name: str                      # "gpt" | "masked"
+    text_encoder: str              # the text features it is conditioned on ("minilm", "clip")
+    max_tokens: int                # longest motion it generates, in tokens (4 frames each)
+    paths: dict[str, str]          # its runs, in report order ({"gpt": ...} or {"masked": ..., "residual": ...})
+    settings: dict[str, Any]       # decoding settings beyond temperature/top-k/guidance, for the report
+    batch_by_length: bool          # batch rows of similar lengths together (every step runs at the batch's longest)
+
+    def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
+              top_k: int | None, rng: np.random.Generator) -> list[Any]:
+        """One code sequence/map per row of cond [B, Dt], of exactly tokens[i] time steps, in the VQ's layout."""
+        ...
+
+    def estimate_tokens(self, cond: np.ndarray, rng: np.random.Generator) -> list[int] | None:
+        """Token counts the family would choose itself for these texts (a length estimator), or None."""
+        ...
