@@ -21,7 +21,9 @@ from t2m.bundle import (
     check_files,
     check_graph_io,
     expected_graphs,
-    read_manifest,
+    parse_manifest,
+    read_manifest_dict,
+    required_files,
 )
 
 __all__ = ["Bundle", "BundleError", "Manifest", "load_bundle", "session_options"]
@@ -33,10 +35,19 @@ _ORT_DTYPES = {"tensor(float)": "float32", "tensor(int64)": "int64", "tensor(int
                "tensor(float16)": "float16", "tensor(bool)": "bool"}
 
 
+SERVED_FAMILIES = ("gpt",)
+
+
+def _check_served_family(raw: dict) -> None:
+    """Refuse a family this service has no decoding loop for before its family-specific fields are read."""
+    family = raw.get("family", "gpt")
+    if family not in SERVED_FAMILIES:
+        raise BundleError(f"manifest.json: field 'family' must be one of {list(SERVED_FAMILIES)} (the families this "
+                          f"service runs), got {family!r}")
+
+
 def _check_family(manifest: Manifest) -> None:
     """The decoding loops this service has: the GPT over one layer of codes."""
-    if manifest.family != "gpt":
-        raise BundleError(f"manifest.json: field 'family' is {manifest.family!r}; this service runs 'gpt' bundles")
     if manifest.residual_layers != 1:
         raise BundleError(f"manifest.json: field 'residual_layers' is {manifest.residual_layers}; this service "
                           "samples one code per step and serves single-layer bundles only")
@@ -101,8 +112,10 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
                 inter_op_threads: int = 1) -> Bundle:
     """Verify the bundle at `path` and open its graphs; raises BundleError naming the first problem found."""
     path = Path(path)
-    manifest = read_manifest(path)
-    check_files(path, manifest.files, check_hashes=check_hashes)
+    raw = read_manifest_dict(path)
+    _check_served_family(raw)
+    manifest = parse_manifest(raw)
+    check_files(path, manifest.files, check_hashes=check_hashes, required=required_files(raw))
     _check_family(manifest)
     options = session_options(intra_op_threads, inter_op_threads)
     sessions = {}
