@@ -143,6 +143,9 @@ def test_the_api_answers_json_bvh_and_glb(masked_bundle, make_client):
     assert glb.status_code == 200 and glb.content[:4] == b"glTF"
     refused = client.post("/generate", json={**body, "top_k": 17})
     assert refused.status_code == 422 and "top_k" in refused.text
+    model = client.get("/health").json()["model"]
+    assert model["default_guidance"] == 4.0
+    assert model["extra"]["family"] == "masked" and model["extra"]["masked"]["columns"] == 6
 
 
 def test_the_api_refuses_a_null_duration_without_a_length_graph(masked_1d_bundle, make_client):

@@ -68,7 +68,8 @@ class OnnxEngine:
             skeleton=manifest.skeleton, joint_names=tuple(self.skeleton.joint_names),
             parents=tuple(int(p) for p in self.skeleton.parents),
             details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
-                        if key in raw}, "unknown_text": self._unknown_text_details()})
+                        if key in raw}, "unknown_text": self._unknown_text_details(),
+                     **({"family": manifest.family, "masked": raw["masked"]} if manifest.masked is not None else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
