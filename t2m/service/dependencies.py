@@ -12,7 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from t2m.service.batching import MicroBatcher
 from t2m.service.engine.types import Engine
 from t2m.service.metrics import ServiceMetrics
-from t2m.service.registry import ModelRegistry
+from t2m.service.registry import ModelRegistry, ServedModel
 from t2m.service.settings import Settings
 
 __all__ = ["ServiceState", "get_state", "ready_state", "require_api_key"]
@@ -42,12 +42,16 @@ class ServiceState:
 
     def set_ready(self, models: ModelRegistry, load_seconds: float) -> None:
         for model in models:
-            batcher = model.batcher
-            self.metrics.add_model(model.name, model.limits.version, lambda b=batcher: b.queue_depth,
-                                   lambda b=batcher: b.in_flight)
+            self._publish(model)
         with self._lock:
             self.models, self.load_seconds = models, load_seconds
             self.status = "ok"
+
+    def _publish(self, model: ServedModel) -> None:
+        """The model's series in /metrics, its queue gauges reading its own batcher."""
+        batcher = model.batcher
+        self.metrics.add_model(model.name, model.limits.version, lambda: batcher.queue_depth,
+                               lambda: batcher.in_flight)
 
     def set_error(self, message: str) -> None:
         with self._lock:
