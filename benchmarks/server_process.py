@@ -13,7 +13,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.error import HTTPError, URLError
@@ -70,11 +70,13 @@ def wait_until_healthy(url: str, timeout_s: float, process: subprocess.Popen | N
 
 @contextlib.contextmanager
 def running_server(model_dir: str | Path, env: dict[str, str] | None = None, startup_timeout_s: float = 120.0,
-                   log_dir: str | Path | None = None) -> Iterator[LiveServer]:
+                   log_dir: str | Path | None = None,
+                   extra_models: Sequence[str | Path] = ()) -> Iterator[LiveServer]:
     """`t2m serve --host 127.0.0.1 --port <free> --model DIR` as a child process, healthy on entry, stopped on exit.
 
-    `env` adds T2M_* settings (for example {"T2M_MAX_QUEUE": "2"}). The server's output goes to a log file whose
-    tail is shown if it fails to start.
+    `env` adds T2M_* settings (for example {"T2M_MAX_QUEUE": "2"}); `extra_models` are served next to DIR (one more
+    `--model` each; DIR stays the default). The server's output goes to a log file whose tail is shown if it fails
+    to start.
     """
     port = free_port()
     url = f"http://127.0.0.1:{port}"
@@ -85,6 +87,8 @@ def running_server(model_dir: str | Path, env: dict[str, str] | None = None, sta
     child_env.setdefault("PYTHONPATH", str(REPO))
     command = [sys.executable, "-m", "t2m.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
                "--model", str(model_dir)]
+    for extra in extra_models:
+        command += ["--model", str(extra)]
     with open(log_path, "wb") as log:
         process = subprocess.Popen(command, cwd=REPO, env=child_env, stdout=log, stderr=subprocess.STDOUT)
     try:

@@ -15,9 +15,13 @@ DEFAULT_TIMEOUT_S = 120.0
 
 
 def request_body(segments: SegmentsLike, fmt: str, seed: int | None, guidance: float | None,
-                 temperature: float, top_k: int | None) -> dict[str, Any]:
-    return {"segments": [s.to_json() for s in to_segments(segments)], "format": fmt, "seed": seed,
-            "guidance": guidance, "temperature": temperature, "top_k": top_k}
+                 temperature: float, top_k: int | None, model: str | None = None) -> dict[str, Any]:
+    """The POST /generate body; `model` only when one is named, so servers from before it was added still accept it."""
+    body: dict[str, Any] = {"segments": [s.to_json() for s in to_segments(segments)], "format": fmt, "seed": seed,
+                            "guidance": guidance, "temperature": temperature, "top_k": top_k}
+    if model is not None:
+        body["model"] = model
+    return body
 
 
 def auth_headers(api_key: str | None) -> dict[str, str]:

@@ -51,20 +51,22 @@ class T2MClient:
         except httpx.TransportError as error:
             raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         if response.status_code == 503:
-            return Health(**response.json())
+            return Health.from_json(response.json())
         raise_for_answer(response)
-        return Health(**response.json())
+        return Health.from_json(response.json())
 
     def generate(self, segments: SegmentsLike, *, seed: int | None = None, guidance: float | None = None,
-                 temperature: float = 1.0, top_k: int | None = None) -> Motion:
-        """Joint positions of one continuous motion for the sentences."""
-        body = request_body(segments, "json", seed, guidance, temperature, top_k)
+                 temperature: float = 1.0, top_k: int | None = None, model: str | None = None) -> Motion:
+        """Joint positions of one continuous motion for the sentences; `model` names a served model
+        (`health().model_names`), None = the server's default."""
+        body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json(self._send("POST", "/generate", json=body).json())
 
     def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
-                     guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None) -> RawResult:
+                     guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None,
+                     model: str | None = None) -> RawResult:
         """The file in format 'bvh' | 'glb' | 'json' as bytes, with the seed the server used."""
-        body = request_body(segments, fmt, seed, guidance, temperature, top_k)
+        body = request_body(segments, fmt, seed, guidance, temperature, top_k, model)
         return raw_result(self._send("POST", "/generate", json=body))
 
     def generate_bvh(self, segments: SegmentsLike, **options: Any) -> str:
@@ -115,19 +117,19 @@ class AsyncT2MClient:
         except httpx.TransportError as error:
             raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         if response.status_code == 503:
-            return Health(**response.json())
+            return Health.from_json(response.json())
         raise_for_answer(response)
-        return Health(**response.json())
+        return Health.from_json(response.json())
 
     async def generate(self, segments: SegmentsLike, *, seed: int | None = None, guidance: float | None = None,
-                       temperature: float = 1.0, top_k: int | None = None) -> Motion:
-        body = request_body(segments, "json", seed, guidance, temperature, top_k)
+                       temperature: float = 1.0, top_k: int | None = None, model: str | None = None) -> Motion:
+        body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json((await self._send("POST", "/generate", json=body)).json())
 
     async def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
                            guidance: float | None = None, temperature: float = 1.0,
-                           top_k: int | None = None) -> RawResult:
-        body = request_body(segments, fmt, seed, guidance, temperature, top_k)
+                           top_k: int | None = None, model: str | None = None) -> RawResult:
+        body = request_body(segments, fmt, seed, guidance, temperature, top_k, model)
         return raw_result(await self._send("POST", "/generate", json=body))
 
     async def generate_bvh(self, segments: SegmentsLike, **options: Any) -> str:

@@ -102,14 +102,31 @@ class Motion:
 
 @dataclass(frozen=True)
 class Health:
+    """GET /health: `model` is the default model's facts, `models` every served model's (the default first)."""
+
     status: str                       # "ok" | "loading" | "error"
     model: dict[str, Any] | None = None
     detail: str | None = None
     service_version: str | None = None
+    models: list[dict[str, Any]] = field(default_factory=list)
+    default: str | None = None        # the name of the model a request without `model` gets
 
     @property
     def ready(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def model_names(self) -> list[str]:
+        """The names `generate(..., model=...)` accepts (a server from before several models: the one model)."""
+        if self.models:
+            return [str(entry["name"]) for entry in self.models]
+        return [str(self.model["name"])] if self.model else []
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Health:
+        """Reads the fields it knows; fields a newer server adds are ignored, so the SDK keeps working."""
+        known = {name: data[name] for name in cls.__dataclass_fields__ if name in data}
+        return cls(**{**known, "models": list(known.get("models") or [])})
 
 
 @dataclass(frozen=True)

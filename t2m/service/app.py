@@ -1,8 +1,9 @@
 """The FastAPI application factory.
 
 `create_app(settings)` wires settings, middleware (metrics, CORS, body limit), routes and error handlers. The model
-bundle loads in a background thread started by the lifespan, so /health answers 503 during the load instead of the
-port staying closed; `engine_factory` lets tests inject an engine.
+bundles (settings.bundle_path, the default, then settings.extra_model_dirs) load in a background thread started by
+the lifespan, so /health answers 503 during the load instead of the port staying closed; `engine_factory(settings)`
+is called once per bundle (with settings naming that bundle alone) and lets tests inject engines.
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from t2m.service.engine.types import Engine
 from t2m.service.formats import preload as preload_formats
 from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
 from t2m.service.middleware import BodySizeLimitMiddleware
+from t2m.service.registry import ModelRegistry, ServedModel, load_engines
 from t2m.service.routes import generate, health, metrics
 from t2m.service.settings import Settings
 
@@ -49,21 +51,29 @@ def load_onnx_engine(settings: Settings) -> Engine:
 
 
 def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engine]) -> None:
+    """Every bundle (the default first), each through `factory` with settings naming it alone, then its batcher."""
     settings = state.settings
     started = time.perf_counter()
     try:
-        engine = factory(settings)
+        loaded = load_engines(settings.model_dirs, lambda directory: factory(settings.for_bundle(directory)))
         preload_formats()
     except Exception as error:  # reported by /health; the process stays up so the cause is visible
-        log.error("model bundle %s failed to load: %s", settings.bundle_path, error)
+        log.error("model bundles failed to load: %s", error)
         state.set_error(str(error))
         return
-    batcher = MicroBatcher(engine, max_queue=settings.max_queue, max_batch_rows=settings.max_batch_rows,
-                           window_s=settings.batch_window_ms / 1000.0, workers=settings.engine_workers)
-    limits = engine.limits
-    state.metrics.model.info({"name": limits.name, "version": limits.version})
-    state.set_ready(engine, batcher, time.perf_counter() - started)
-    log.info("model %s %s ready in %.1f s", limits.name, limits.version, state.load_seconds)
+    models = ModelRegistry([
+        ServedModel(item.directory, item.engine, _batcher_for(item.engine, settings), item.load_seconds)
+        for item in loaded])
+    state.set_ready(models, time.perf_counter() - started)
+    for model in models:
+        log.info("model %s %s ready (%s)%s", model.name, model.limits.version, model.directory,
+                 " - the default" if model is models.default else "")
+    log.info("%d model(s) ready in %.1f s", len(models), state.load_seconds)
+
+
+def _batcher_for(engine: Engine, settings: Settings) -> MicroBatcher:
+    return MicroBatcher(engine, max_queue=settings.max_queue, max_batch_rows=settings.max_batch_rows,
+                        window_s=settings.batch_window_ms / 1000.0, workers=settings.engine_workers)
 
 
 def create_app(settings: Settings | None = None, *,
@@ -80,8 +90,8 @@ def create_app(settings: Settings | None = None, *,
         try:
             yield
         finally:
-            if state.batcher is not None:
-                state.batcher.close()
+            if state.models is not None:
+                state.models.close()
 
     app = FastAPI(title="t2m-service", version=__version__, lifespan=lifespan,
                   description="Text to 3D human motion: a stream of sentences with durations becomes one continuous "

@@ -1,4 +1,4 @@
-"""What the routes share: the service state (engine, batcher, settings, metrics), the API-key check, readiness."""
+"""What the routes share: the service state (models, settings, metrics), the API-key check, readiness."""
 from __future__ import annotations
 
 import secrets
@@ -12,6 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from t2m.service.batching import MicroBatcher
 from t2m.service.engine.types import Engine
 from t2m.service.metrics import ServiceMetrics
+from t2m.service.registry import ModelRegistry, ServedModel
 from t2m.service.settings import Settings
 
 __all__ = ["ServiceState", "get_state", "ready_state", "require_api_key"]
@@ -19,22 +20,38 @@ __all__ = ["ServiceState", "get_state", "ready_state", "require_api_key"]
 
 @dataclass
 class ServiceState:
-    """Everything one app instance owns; the engine appears once the background load has finished."""
+    """Everything one app instance owns; the models appear once the background load of every bundle has finished."""
 
     settings: Settings
     metrics: ServiceMetrics
     status: Literal["loading", "ok", "error"] = "loading"
-    engine: Engine | None = None
-    batcher: MicroBatcher | None = None
+    models: ModelRegistry | None = None
     error: str | None = None
     load_seconds: float | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
-    def set_ready(self, engine: Engine, batcher: MicroBatcher, load_seconds: float) -> None:
+    @property
+    def engine(self) -> Engine | None:
+        """The default model's engine (None until loaded)."""
+        return self.models.default.engine if self.models is not None else None
+
+    @property
+    def batcher(self) -> MicroBatcher | None:
+        """The default model's batcher (None until loaded)."""
+        return self.models.default.batcher if self.models is not None else None
+
+    def set_ready(self, models: ModelRegistry, load_seconds: float) -> None:
+        for model in models:
+            self._publish(model)
         with self._lock:
-            self.engine, self.batcher, self.load_seconds = engine, batcher, load_seconds
+            self.models, self.load_seconds = models, load_seconds
             self.status = "ok"
-        self.metrics.watch_queue(lambda: batcher.queue_depth, lambda: batcher.in_flight)
+
+    def _publish(self, model: ServedModel) -> None:
+        """The model's series in /metrics, its queue gauges reading its own batcher."""
+        batcher = model.batcher
+        self.metrics.add_model(model.name, model.limits.version, lambda: batcher.queue_depth,
+                               lambda: batcher.in_flight)
 
     def set_error(self, message: str) -> None:
         with self._lock:

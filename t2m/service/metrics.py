@@ -1,7 +1,8 @@
 """Prometheus metrics of one app instance (its own registry, so several apps in one process do not collide).
 
-t2m_requests_total{route,method,status}, t2m_request_duration_seconds{route} (histogram),
-t2m_tokens_generated_total, t2m_segments_generated_total, t2m_queue_depth, t2m_in_flight, t2m_model_info{name,version}.
+t2m_requests_total{route,method,status}, t2m_request_duration_seconds{route} (histogram), and per served model
+t2m_tokens_generated_total{model}, t2m_segments_generated_total{model}, t2m_queue_depth{model}, t2m_in_flight{model},
+t2m_model_info{name,version} (model = the manifest name, as in the request's `model` field).
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ LATENCY_BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0
 
 
 class ServiceMetrics:
-    """The collectors; queue depth and in-flight are read from the batcher when Prometheus scrapes."""
+    """The collectors; each model's queue depth and in-flight are read from its batcher when Prometheus scrapes."""
 
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
@@ -25,17 +26,29 @@ class ServiceMetrics:
                                 ["route", "method", "status"], registry=self.registry)
         self.latency = Histogram("t2m_request_duration_seconds", "HTTP request latency by route", ["route"],
                                  buckets=LATENCY_BUCKETS, registry=self.registry)
-        self.tokens = Counter("t2m_tokens_generated", "Motion code tokens generated", registry=self.registry)
-        self.segments = Counter("t2m_segments_generated", "Sentences turned into motion", registry=self.registry)
-        self.queue_depth = Gauge("t2m_queue_depth", "Requests waiting for an engine worker", registry=self.registry)
-        self.in_flight = Gauge("t2m_in_flight", "Requests being generated now", registry=self.registry)
-        self.model = Info("t2m_model", "The loaded model bundle", registry=self.registry)
-        self.queue_depth.set_function(lambda: 0)
-        self.in_flight.set_function(lambda: 0)
+        self.tokens = Counter("t2m_tokens_generated", "Motion code tokens generated, by model", ["model"],
+                              registry=self.registry)
+        self.segments = Counter("t2m_segments_generated", "Sentences turned into motion, by model", ["model"],
+                                registry=self.registry)
+        self.queue_depth = Gauge("t2m_queue_depth", "Requests waiting for an engine worker, by model", ["model"],
+                                 registry=self.registry)
+        self.in_flight = Gauge("t2m_in_flight", "Requests being generated now, by model", ["model"],
+                               registry=self.registry)
+        self.model = Info("t2m_model", "The loaded model bundles (one series each)", ["name", "version"],
+                          registry=self.registry)
 
-    def watch_queue(self, queue_depth: Callable[[], float], in_flight: Callable[[], float]) -> None:
-        self.queue_depth.set_function(queue_depth)
-        self.in_flight.set_function(in_flight)
+    def add_model(self, name: str, version: str, queue_depth: Callable[[], float],
+                  in_flight: Callable[[], float]) -> None:
+        """Publish a loaded model: its info series, its queue gauges, and its counters at 0 before any request."""
+        self.model.labels(name, version).info({})
+        self.queue_depth.labels(name).set_function(queue_depth)
+        self.in_flight.labels(name).set_function(in_flight)
+        self.tokens.labels(name)
+        self.segments.labels(name)
+
+    def count_generation(self, model: str, tokens: int, segments: int) -> None:
+        self.tokens.labels(model).inc(tokens)
+        self.segments.labels(model).inc(segments)
 
 
 class MetricsMiddleware:

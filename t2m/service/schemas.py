@@ -1,8 +1,10 @@
 """The HTTP API, defined once as pydantic models: FastAPI validates requests with them and publishes them as OpenAPI.
 
-Limits that do not depend on the model are declared on the fields (so they show up in the schema); the two that do
-(`top_k` <= the codebook size, free-length segments counted at the model's longest segment) are checked by
-`model_limit_errors`, which reports them in the same shape as pydantic's errors (a `loc` naming the field).
+Limits that do not depend on the model are declared on the fields (so they show up in the schema); the ones that do
+(`top_k` <= the codebook size, durations within max_tokens, free-length segments counted at the model's longest
+segment) are checked against the model the request picks (`model`, by manifest name; null = the default) by
+`model_limit_errors`, which reports them in the same shape as pydantic's errors (a `loc` naming the field), as
+`unknown_model_error` does for a name no served model has.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequ
 __all__ = [
     "MAX_DURATION_S",
     "MAX_GUIDANCE",
+    "MAX_MODEL_NAME_CHARS",
     "MAX_SEED",
     "MAX_SEGMENTS",
     "MAX_TEMPERATURE",
@@ -33,6 +36,7 @@ __all__ = [
     "SegmentSpanOut",
     "model_limit_errors",
     "to_generation_request",
+    "unknown_model_error",
 ]
 
 MAX_SEGMENTS = 32
@@ -42,6 +46,7 @@ MAX_DURATION_S = 10.0
 MAX_TOTAL_S = 120.0
 MAX_GUIDANCE = 10.0
 MAX_TEMPERATURE = 5.0
+MAX_MODEL_NAME_CHARS = 200
 MAX_SEED = 2**53 - 1   # the largest integer every JSON reader (JavaScript included) holds exactly
 
 OutputFormat = Literal["json", "bvh", "glb"]
@@ -93,6 +98,9 @@ class GenerateRequest(_Strict):
         description="Classifier-free guidance scale (1 = off); null = the model's default.")
     temperature: float = Field(1.0, gt=0.0, le=MAX_TEMPERATURE, description="Sampling temperature.")
     top_k: TopK | None = Field(None, description="Sample among the k most likely codes (<= codebook size).")
+    model: Annotated[str, StringConstraints(min_length=1, max_length=MAX_MODEL_NAME_CHARS)] | None = Field(
+        None, description="The served model to use, by its manifest name (GET /health lists them under `models`); "
+                          "null = the default model.", examples=["t2m-bandai-minilm"])
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [{
         "segments": [{"text": "a person walks forward", "duration": 3.0},
@@ -146,7 +154,11 @@ class ModelDetails(ModelInfo):
 class HealthResponse(BaseModel):
     status: Literal["ok", "loading", "error"]
     service_version: str = Field(__version__, description="t2m-service version (the package's and the API's).")
-    model: ModelDetails | None = None
+    model: ModelDetails | None = Field(None, description="The default model (the one a request without `model` gets).")
+    models: list[ModelDetails] = Field(default_factory=list,
+                                       description="Every served model, the default first; `name` is what a request's "
+                                                   "`model` field takes.")
+    default: str | None = Field(None, description="The default model's name.")
     detail: str | None = None
 
 
@@ -181,6 +193,12 @@ def model_limit_errors(request: GenerateRequest, limits: ModelLimits) -> list[di
             f"total duration {total:g} s exceeds {MAX_TOTAL_S:g} s (a null duration counts as "
             f"{limits.max_segment_seconds:g} s, the model's longest segment)", None))
     return errors
+
+
+def unknown_model_error(name: str, available: list[str]) -> dict[str, Any]:
+    """The 422 error for a `model` no served model is called, listing the names that exist."""
+    return _error(("body", "model"), f"no model named {name!r}; this service serves "
+                  f"{', '.join(repr(known) for known in available)}", name)
 
 
 def to_generation_request(request: GenerateRequest, limits: ModelLimits, seed: int) -> GenerationRequest:

@@ -29,9 +29,13 @@ class Settings(BaseSettings):
     bundle_path: Path = Field(
         default_factory=default_bundle_path,
         validation_alias=AliasChoices("bundle_path", "T2M_BUNDLE_PATH", "T2M_MODEL_DIR"),
-        description="Model bundle directory (env T2M_BUNDLE_PATH or T2M_MODEL_DIR); "
+        description="Model bundle directory of the default model (env T2M_BUNDLE_PATH or T2M_MODEL_DIR); "
                     "default: the embedded t2m/bundles/default.",
     )
+    extra_model_dirs: Annotated[list[Path], NoDecode] = Field(
+        default_factory=list,
+        description="Further model bundle directories served next to the default, comma-separated in the env; "
+                    "a request picks one by its manifest name (the request's `model` field).")
     intra_op_threads: int = Field(0, ge=0, description="onnxruntime intra-op threads per session (0 = ORT's choice).")
     inter_op_threads: int = Field(1, ge=0, description="onnxruntime inter-op threads per session.")
     engine_workers: int = Field(1, ge=1, le=16, description="Worker threads that run batches of generations.")
@@ -49,13 +53,23 @@ class Settings(BaseSettings):
         "warn", description="A sentence far from every training caption of the model (bundles with a caption index): "
                             "'warn' answers 200 with a warning naming the segment, 'reject' answers 422 naming it.")
 
-    @field_validator("cors_origins", mode="before")
+    @field_validator("cors_origins", "extra_model_dirs", mode="before")
     @classmethod
-    def _split_origins(cls, value: object) -> object:
-        """Accept 'https://a.example, https://b.example' from the environment as well as a list."""
+    def _split_commas(cls, value: object) -> object:
+        """Accept 'https://a.example, https://b.example' (or 'models/a,models/b') from the environment as well as
+        a list."""
         if isinstance(value, str):
-            return [origin.strip() for origin in value.split(",") if origin.strip()]
+            return [item.strip() for item in value.split(",") if item.strip()]
         return value
+
+    @property
+    def model_dirs(self) -> list[Path]:
+        """Every bundle to serve, the default first."""
+        return [self.bundle_path, *self.extra_model_dirs]
+
+    def for_bundle(self, directory: Path) -> Settings:
+        """These settings with `directory` as the only bundle: what an engine factory is given for each model."""
+        return self.model_copy(update={"bundle_path": directory, "extra_model_dirs": []})
 
     @field_validator("api_key", mode="after")
     @classmethod

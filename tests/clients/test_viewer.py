@@ -7,7 +7,9 @@ and that the console stays clean. The screenshot lands in artifacts/viewer/ (env
 from __future__ import annotations
 
 import io
+import json
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -50,6 +52,17 @@ def server(bundle_dir, tmp_path_factory):
         yield live
 
 
+@pytest.fixture(scope="module")
+def renamed_copy(bundle_dir, tmp_path_factory) -> Path:
+    """The same bundle under another manifest name (the manifest is not hashed), to serve two models."""
+    copy = tmp_path_factory.mktemp("bundle") / "copy"
+    shutil.copytree(bundle_dir, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["name"] += "-copy"
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    return copy
+
+
 @pytest.fixture
 def browser(tmp_path):
     if not find_chromium():
@@ -74,6 +87,8 @@ def _right_bone_pixels(pixels: np.ndarray) -> int:
 def test_generate_animates_and_downloads(server, browser, bundle_dir):
     browser.navigate(server.url + "/")
     browser.wait_for("document.querySelectorAll('.segment-row').length === 2")
+    browser.wait_for("document.getElementById('server-status').classList.contains('ready')", timeout_s=30)
+    assert browser.evaluate("document.getElementById('model-field').hidden") is True   # one model: no choice shown
     before = _pixels(browser.canvas_png("#view"))
     assert _right_bone_pixels(before) == 0, "a skeleton is drawn before anything was generated"
 
@@ -174,3 +189,25 @@ def test_bad_input_is_explained_on_the_page(server, browser):
     # The only console error allowed is the browser's own note about the 422 response.
     unexpected = [e for e in browser.console_errors() if "422" not in e]
     assert unexpected == []
+
+
+def test_the_model_choice_picks_a_served_model(bundle_dir, renamed_copy, browser, tmp_path):
+    """Two bundles served: the page lists both (the default first and selected), and the chosen one answers."""
+    default = json.loads((bundle_dir / "manifest.json").read_text())["name"]
+    other = default + "-copy"
+    with running_server(bundle_dir, extra_models=[renamed_copy], log_dir=tmp_path / "server") as live:
+        browser.navigate(live.url + "/")
+        browser.wait_for("!document.getElementById('model-field').hidden", timeout_s=30)
+        options = browser.evaluate("Array.from(document.querySelectorAll('#model option')).map(o => o.value)")
+        assert options == [default, other]
+        assert browser.evaluate("document.getElementById('model').value") == default
+        assert "2 models" in browser.evaluate("document.getElementById('server-status').textContent")
+        browser.evaluate(f"(() => {{ const s = document.getElementById('model'); s.value = {json.dumps(other)};"
+                         " s.dispatchEvent(new Event('change')); })()")
+        browser.type_into("#seed", "5")
+        browser.click("#generate")
+        state = browser.wait_for("['ready', 'error'].includes(document.body.dataset.state)"
+                                 " && document.body.dataset.state", timeout_s=120)
+        assert state == "ready", browser.evaluate("document.getElementById('message').textContent")
+        assert other in browser.evaluate("document.getElementById('model-info').textContent")
+        assert browser.console_errors() == []

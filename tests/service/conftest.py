@@ -30,6 +30,19 @@ def random_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def second_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Another tiny random bundle with other limits, for serving two models: name t2m-random-b 0.0.1, codebook 64,
+    max_tokens 25 (5 s segments), default guidance 2."""
+    import torch
+
+    from t2m.export.random_bundle import build_random_bundle
+
+    torch.set_num_threads(1)
+    return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random-b", seed=1, name="t2m-random-b",
+                               version="0.0.1", codebook_size=64, block_size=26, default_guidance=2.0)
+
+
+@pytest.fixture(scope="session")
 def bundle_without_uncond(random_bundle: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The same graphs, declared as trained without an unconditional branch (manifest is not hashed)."""
     target = tmp_path_factory.mktemp("bundle") / "no-uncond"

@@ -62,7 +62,7 @@ def test_overload_answers_429_with_retry_after(make_client):
     while state.batcher.queue_depth < 1:
         time.sleep(0.005)
     metrics = client.get("/metrics").text
-    assert "t2m_queue_depth 1.0" in metrics and "t2m_in_flight 1.0" in metrics
+    assert 't2m_queue_depth{model="fake"} 1.0' in metrics and 't2m_in_flight{model="fake"} 1.0' in metrics
     refused = client.post("/generate", json=BODY)
     assert refused.status_code == 429
     assert refused.headers["Retry-After"] == "3"
@@ -172,9 +172,10 @@ def test_metrics_count_routes_and_statuses(make_client):
     assert 't2m_requests_total{method="POST",route="/generate",status="422"} 1.0' in text
     assert 'route="unmatched",status="404"' in text
     assert 't2m_request_duration_seconds_bucket{le="0.1",route="/generate"}' in text
-    assert "t2m_tokens_generated_total 5.0" in text                 # 1 s = 5 tokens
+    assert 't2m_tokens_generated_total{model="fake"} 5.0' in text    # 1 s = 5 tokens
+    assert 't2m_segments_generated_total{model="fake"} 1.0' in text
     assert 't2m_model_info{name="fake",version="0.0.1"} 1.0' in text
-    assert "t2m_queue_depth 0.0" in text and "t2m_in_flight 0.0" in text
+    assert 't2m_queue_depth{model="fake"} 0.0' in text and 't2m_in_flight{model="fake"} 0.0' in text
 
 
 class _FailingEngine(FakeEngine):

@@ -123,7 +123,8 @@ def test_openapi_is_generated_from_the_schemas(client):
     assert body["$ref"].endswith("/GenerateRequest")
     request_schema = schema["components"]["schemas"]["GenerateRequest"]
     assert request_schema["additionalProperties"] is False
-    assert {"segments", "format", "seed", "guidance", "temperature", "top_k"} == set(request_schema["properties"])
+    assert set(request_schema["properties"]) == {"segments", "format", "seed", "guidance", "temperature", "top_k",
+                                                 "model"}
     assert "MotionResponse" in schema["components"]["schemas"]
 
 

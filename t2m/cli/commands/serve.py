@@ -3,28 +3,59 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "serve", help="run the HTTP API (POST /generate, GET /health, GET /metrics)",
-        description="Serve the model over HTTP. Every T2M_* environment variable of service/settings.py applies "
+        description="Serve the model(s) over HTTP. Every T2M_* environment variable of service/settings.py applies "
                     "(T2M_MAX_QUEUE, T2M_REQUEST_TIMEOUT_S, T2M_API_KEY, T2M_CORS_ORIGINS, ...).")
     parser.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
-    parser.add_argument("--model", type=Path, default=None,
-                        help="model bundle directory (default: T2M_MODEL_DIR, else the embedded t2m/bundles/default)")
+    parser.add_argument("--model", type=Path, action="append", default=None, metavar="DIR",
+                        help="model bundle directory; repeat to serve several (the first is the default, a request "
+                             "picks another by its manifest name). Given, it names every model served "
+                             "(T2M_EXTRA_MODEL_DIRS is replaced); default: T2M_MODEL_DIR (+ T2M_EXTRA_MODEL_DIRS), "
+                             "else the embedded t2m/bundles/default")
     parser.add_argument("--workers", type=int, default=1,
-                        help="uvicorn worker processes, each with its own model copy and /metrics (default 1)")
+                        help="uvicorn worker processes, each with its own model copies and /metrics (default 1)")
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     parser.set_defaults(func=_serve)
+
+
+def model_environment(models: Sequence[Path]) -> dict[str, str]:
+    """The T2M_* variables that carry `--model` choices into every worker process: the first bundle is the default
+    (T2M_BUNDLE_PATH, which settings read first), the others T2M_EXTRA_MODEL_DIRS (comma-separated)."""
+    from t2m.cli.main import CliError
+
+    paths = [str(Path(model).resolve()) for model in models]
+    for path in paths:
+        if "," in path:
+            raise CliError(f"--model {path}: a bundle path with a comma cannot be served next to others "
+                           "(T2M_EXTRA_MODEL_DIRS is comma-separated); rename the directory")
+    return {"T2M_BUNDLE_PATH": paths[0], "T2M_EXTRA_MODEL_DIRS": ",".join(paths[1:])}
+
+
+def check_bundles(directories: Sequence[Path]) -> None:
+    """Fail now, in one line, if a directory is no bundle or two bundles share a manifest name (hashes are checked by
+    the server)."""
+    from t2m.bundle import read_manifest
+    from t2m.cli.main import CliError
+
+    seen: dict[str, Path] = {}
+    for directory in directories:
+        name = read_manifest(directory).name
+        if name in seen:
+            raise CliError(f"--model {seen[name]} and {directory} are both named {name!r}: every served model needs "
+                           "its own manifest name (a request picks a model by it)")
+        seen[name] = directory
 
 
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from t2m.bundle import read_manifest
     from t2m.cli.main import CliError
     from t2m.service.settings import Settings
 
@@ -32,11 +63,9 @@ def _serve(args: argparse.Namespace) -> int:
         raise CliError(f"--port must be 1..65535, got {args.port}")
     if args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
-    if args.model is not None:
-        # the environment carries the choice into every worker process (settings read T2M_BUNDLE_PATH first)
-        os.environ["T2M_BUNDLE_PATH"] = str(args.model.resolve())
-    bundle = Settings().bundle_path
-    read_manifest(bundle)   # fail now, in one line, if the directory is no bundle; hashes are checked by the server
+    if args.model:
+        os.environ.update(model_environment(args.model))
+    check_bundles(Settings().model_dirs)
     uvicorn.run("t2m.service.app:app_from_env", factory=True, host=args.host, port=args.port, workers=args.workers,
                 log_level=args.log_level, proxy_headers=True, forwarded_allow_ips="*")
     return 0

@@ -18,6 +18,7 @@ from t2m.service.schemas import (
     MotionResponse,
     model_limit_errors,
     to_generation_request,
+    unknown_model_error,
 )
 
 __all__ = ["RANDOM_SEED_BITS", "router"]
@@ -44,16 +45,21 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
              dependencies=[Depends(require_api_key)], summary="Generate a motion from sentences")
 async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_state)) -> Response:
     """Each segment's text becomes `duration` seconds of motion (or as long as the model decides when null),
-    the segments following each other without a seam. The answer's `segments` give each sentence's frames."""
-    engine, batcher, settings = state.engine, state.batcher, state.settings
-    assert engine is not None and batcher is not None
-    errors = model_limit_errors(body, engine.limits)
+    the segments following each other without a seam. The answer's `segments` give each sentence's frames.
+    `model` picks a served model by name (GET /health lists them); without it the default model answers."""
+    settings = state.settings
+    assert state.models is not None
+    model = state.models.get(body.model)
+    if model is None:
+        raise RequestValidationError([unknown_model_error(str(body.model), state.models.names)])
+    limits = model.limits
+    errors = model_limit_errors(body, limits)
     if errors:
         raise RequestValidationError(errors)
     seed = body.seed if body.seed is not None else secrets.randbits(RANDOM_SEED_BITS)
-    request = to_generation_request(body, engine.limits, seed)
+    request = to_generation_request(body, limits, seed)
     try:
-        motion = await batcher.generate(request, settings.request_timeout_s)
+        motion = await model.batcher.generate(request, settings.request_timeout_s)
     except QueueFullError as error:
         raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, detail=f"server busy: {error}",
                             headers={"Retry-After": str(settings.retry_after_s)}) from None
@@ -67,10 +73,9 @@ async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_st
         field = str(error).split(":", 1)[0]
         loc = ("body", *(int(part) if part.isdigit() else part for part in field.split(".")))
         raise RequestValidationError([{"type": "value_error", "loc": loc, "msg": str(error), "input": None}]) from None
-    state.metrics.tokens.inc(motion.tokens)
-    state.metrics.segments.inc(len(motion.segments))
+    state.metrics.count_generation(model.name, motion.tokens, len(motion.segments))
 
-    rendered = await run_in_threadpool(render, motion, body.format, engine.limits)
+    rendered = await run_in_threadpool(render, motion, body.format, limits)
     headers = {"X-Seed": str(motion.seed)}
     if motion.warnings:
         # headers are latin-1: anything else (e.g. a model name) becomes '?'

@@ -1,10 +1,11 @@
-"""GET /health: 200 with the model's facts once loaded, 503 while loading or after a failed load."""
+"""GET /health: 200 with every served model's facts once all are loaded, 503 while loading or after a failed load."""
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
 
 from t2m.service.dependencies import ServiceState, get_state
+from t2m.service.registry import ServedModel
 from t2m.service.schemas import HealthResponse, ModelDetails
 
 __all__ = ["router"]
@@ -15,16 +16,22 @@ router = APIRouter(tags=["operations"])
 @router.get("/health", response_model=HealthResponse,
             responses={503: {"model": HealthResponse, "description": "Loading, or the load failed (see detail)."}})
 def health(state: ServiceState = Depends(get_state)) -> JSONResponse:
-    """Readiness for load balancers and container health checks."""
-    if state.status != "ok" or state.engine is None:
+    """Readiness for load balancers and container health checks. `model` is the default model (as before several
+    models could be served); `models` lists every served model, the default first."""
+    if state.status != "ok" or state.models is None:
         answer = HealthResponse(status=state.status, detail=state.error if state.status == "error"
-                                else "loading the model bundle")
+                                else "loading the model bundles")
         return JSONResponse(answer.model_dump(), status_code=503,
                             headers={"Retry-After": str(state.settings.retry_after_s)})
-    limits = state.engine.limits
-    model = ModelDetails(name=limits.name, version=limits.version, fps=limits.fps, max_tokens=limits.max_tokens,
-                         codebook_size=limits.codebook_size, default_guidance=limits.default_guidance,
-                         unconditional_branch=limits.unconditional_branch,
-                         length_conditioning=limits.length_conditioning,
-                         extra={**limits.details, "load_seconds": state.load_seconds})
-    return JSONResponse(HealthResponse(status="ok", model=model).model_dump())
+    models = [_details(model) for model in state.models]
+    answer = HealthResponse(status="ok", model=models[0], models=models, default=state.models.default.name)
+    return JSONResponse(answer.model_dump())
+
+
+def _details(model: ServedModel) -> ModelDetails:
+    limits = model.limits
+    return ModelDetails(name=limits.name, version=limits.version, fps=limits.fps, max_tokens=limits.max_tokens,
+                        codebook_size=limits.codebook_size, default_guidance=limits.default_guidance,
+                        unconditional_branch=limits.unconditional_branch,
+                        length_conditioning=limits.length_conditioning,
+                        extra={**limits.details, "load_seconds": model.load_seconds})

@@ -34,6 +34,8 @@
     guidance: $('guidance'),
     temperature: $('temperature'),
     topK: $('top-k'),
+    model: $('model'),
+    modelField: $('model-field'),
     apiKey: $('api-key'),
     generate: $('generate'),
     message: $('message'),
@@ -64,6 +66,7 @@
     sides: [], // 'left' | 'right' | 'centre' per joint
     headJoint: -1,
     currentSegment: -1,
+    models: [], // GET /health `models`: every model the server serves, the default first
   };
 
   // ---------------------------------------------------------------- small vector helpers
@@ -390,6 +393,7 @@
       return segment;
     });
     const body = { segments, format };
+    if (!ui.modelField.hidden && ui.model.value) body.model = ui.model.value;
     for (const [key, input] of [['seed', ui.seed], ['guidance', ui.guidance], ['temperature', ui.temperature], ['top_k', ui.topK]]) {
       const value = readNumber(input);
       if (Number.isNaN(value)) throw fieldError(input, `${key} is not a number`);
@@ -417,7 +421,9 @@
       if (input) input.classList.add('invalid');
       return;
     }
-    const byField = { seed: ui.seed, guidance: ui.guidance, temperature: ui.temperature, top_k: ui.topK };
+    const byField = {
+      seed: ui.seed, guidance: ui.guidance, temperature: ui.temperature, top_k: ui.topK, model: ui.model,
+    };
     if (byField[path[0]]) byField[path[0]].classList.add('invalid');
   }
 
@@ -544,6 +550,30 @@
 
   // ---------------------------------------------------------------- server status
 
+  /** Fills the model choice from /health (kept when the list is unchanged); hidden when there is only one model. */
+  function showModels(health) {
+    const models = Array.isArray(health.models) ? health.models.filter((m) => m && m.name) : [];
+    const names = models.map((m) => m.name);
+    if (names.join('\n') !== state.models.map((m) => m.name).join('\n')) {
+      const previous = ui.model.value;
+      ui.model.replaceChildren(...models.map((m) => {
+        const option = document.createElement('option');
+        option.value = m.name;
+        option.textContent = `${m.name} ${m.version || ''}${m.name === health.default ? ' (default)' : ''}`;
+        return option;
+      }));
+      ui.model.value = names.includes(previous) ? previous : health.default || names[0] || '';
+    }
+    state.models = models;
+    ui.modelField.hidden = models.length < 2;
+  }
+
+  /** A newly chosen model brings its own guidance default (1 for a model without an unconditional branch). */
+  function onModelChange() {
+    const chosen = state.models.find((m) => m.name === ui.model.value);
+    if (chosen) ui.guidance.value = String(chosen.unconditional_branch ? chosen.default_guidance : 1);
+  }
+
   async function pollHealth() {
     let delay = 5000;
     try {
@@ -551,7 +581,9 @@
       if (response.ok) {
         const health = await response.json().catch(() => ({}));
         const model = health.model || {};
-        ui.serverStatus.textContent = model.name ? `${model.name} ${model.version || ''} · ready` : 'model ready';
+        showModels(health);
+        ui.serverStatus.textContent = state.models.length > 1 ? `${state.models.length} models · ready`
+          : model.name ? `${model.name} ${model.version || ''} · ready` : 'model ready';
         ui.serverStatus.className = 'pill ready';
         delay = 30000;
       } else {
@@ -617,6 +649,7 @@
   ui.downloadBvh.addEventListener('click', () => download('bvh', ui.downloadBvh));
   ui.downloadGlb.addEventListener('click', () => download('glb', ui.downloadGlb));
   ui.form.addEventListener('input', (e) => e.target.classList.remove('invalid'));
+  ui.model.addEventListener('change', onModelChange);
 
   DEFAULT_ROWS.forEach(([text, duration]) => addRow(text, duration));
   pollHealth();
