@@ -155,3 +155,19 @@ def test_the_api_refuses_a_null_duration_without_a_length_graph(masked_1d_bundle
     answer = client.post("/generate", json={"segments": [{"text": "a person walks", "duration": 1.0},
                                                          {"text": "a person bows", "duration": None}], "seed": 1})
     assert answer.status_code == 422 and "segments.1.duration" in answer.text
+
+
+def test_a_gpt_and_a_masked_bundle_served_together(random_bundle, masked_bundle, make_client):
+    """The default GPT bundle and a masked one side by side: the request's model picks the family's loop."""
+    from t2m.service.settings import Settings
+
+    client = make_client(Settings(bundle_path=random_bundle, extra_model_dirs=[masked_bundle], intra_op_threads=1))
+    body = {"segments": [{"text": text, "duration": duration} for text, duration in STREAM], "seed": 3}
+    masked = client.post("/generate", json={**body, "model": "t2m-random-masked-test"})
+    assert masked.status_code == 200, masked.text
+    assert masked.json()["model"]["name"] == "t2m-random-masked-test"
+    assert [s["end_frame"] for s in masked.json()["segments"]] == [20, 36, 48]
+    gpt = client.post("/generate", json=body)
+    assert gpt.status_code == 200 and gpt.json()["model"]["name"] != "t2m-random-masked-test"
+    families = [m.get("extra", {}).get("family", "gpt") for m in client.get("/health").json()["models"]]
+    assert families == ["gpt", "masked"]
