@@ -171,3 +171,22 @@ def test_a_gpt_and_a_masked_bundle_served_together(random_bundle, masked_bundle,
     assert gpt.status_code == 200 and gpt.json()["model"]["name"] != "t2m-random-masked-test"
     families = [m.get("extra", {}).get("family", "gpt") for m in client.get("/health").json()["models"]]
     assert families == ["gpt", "masked"]
+
+
+def test_the_1d_variant_serves_the_pytorch_reference_tokens(masked_1d_bundle, monkeypatch):
+    from t2m.export.random_bundle import random_masked_models
+    from t2m.model.masked_sampling import generate_token_maps
+    from t2m.service.engine.engine import OnnxEngine
+
+    engine = OnnxEngine.load(masked_1d_bundle, intra_op_threads=1)
+    calls: list[np.ndarray] = []
+    original = engine.decoder.decode
+    monkeypatch.setattr(engine.decoder, "decode", lambda codes: calls.append(np.asarray(codes)) or original(codes))
+    motion = engine.generate(_request(STREAM, seed=9, guidance=2.0))
+    models = random_masked_models(variant="1d", residual_layers=2, length_estimator=False, seed=0)
+    conds = engine.text.encode([text for text, _ in STREAM])
+    reference = generate_token_maps(models["masked"], models["residual"], conds, [5, 4, 3], steps=4, guidance=2.0,
+                                    residual_guidance=5.0, rng=np.random.default_rng(9))
+    expected = np.concatenate([reference[i, :n] for i, n in enumerate([5, 4, 3])])
+    assert calls[0].shape == (12, 1, 2) and motion.joints.shape == (48, 22, 3)
+    np.testing.assert_array_equal(calls[0], expected)
