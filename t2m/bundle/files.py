@@ -27,9 +27,11 @@ def files_table(bundle_dir: Path, names: Iterable[str]) -> dict[str, dict[str, A
             for name in sorted(names)}
 
 
-def check_files(bundle_dir: Path, files: Mapping[str, Any], *, check_hashes: bool = True) -> None:
-    """Every required file present and listed; every listed file inside the bundle with its size (and sha256)."""
-    for name in REQUIRED_FILES:
+def check_files(bundle_dir: Path, files: Mapping[str, Any], *, check_hashes: bool = True,
+                required: Iterable[str] = REQUIRED_FILES) -> None:
+    """Every required file present and listed (`required`: the GPT's table by default; a masked manifest's come from
+    `required_files(manifest)`); every listed file inside the bundle with its size (and sha256)."""
+    for name in required:
         if not (bundle_dir / name).is_file():
             raise BundleError(f"{bundle_dir / name}: missing file")
         if name not in files:

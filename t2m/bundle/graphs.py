@@ -41,8 +41,42 @@ class DeclaredTensor:
     shape: tuple[int | str | None, ...]
 
 
+def _text_graph(manifest: Mapping[str, Any]) -> GraphSpec:
+    dim = manifest["text_encoder"]["dim"]
+    return GraphSpec(
+        inputs=(TensorSpec("input_ids", INT64, (None, None)), TensorSpec("attention_mask", INT64, (None, None))),
+        outputs=(TensorSpec("text_features", FLOAT32, (None, dim)),))
+
+
+def _masked_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
+    """masked.onnx, residual.onnx (R > 1), decoder.onnx over [B, T, C, R] maps, length.onnx (with an estimator)."""
+    masked, dim = manifest["masked"], manifest["text_encoder"]["dim"]
+    columns, layers, size = masked["columns"], manifest["residual_layers"], manifest["codebook_size"]
+    cond, length = TensorSpec("cond", FLOAT32, (None, dim)), TensorSpec("length", INT64, (None,))
+    graphs = {
+        "text_encoder.onnx": _text_graph(manifest),
+        "masked.onnx": GraphSpec(
+            inputs=(TensorSpec("tokens", INT64, (None, None, columns)), cond, length),
+            outputs=(TensorSpec("logits", FLOAT32, (None, None, columns, size)),)),
+    }
+    if layers > 1:
+        graphs["residual.onnx"] = GraphSpec(
+            inputs=(TensorSpec("codes", INT64, (None, None, columns, layers)), TensorSpec("layer", INT64, (None,)),
+                    cond, length),
+            outputs=(TensorSpec("logits", FLOAT32, (None, None, columns, size + 1)),))
+    if masked["length_estimator"]:
+        graphs["length.onnx"] = GraphSpec(
+            inputs=(cond,), outputs=(TensorSpec("logits", FLOAT32, (None, manifest["max_tokens"] + 1)),))
+    graphs["decoder.onnx"] = GraphSpec(
+        inputs=(TensorSpec("codes", INT64, (None, None, columns, layers)),),
+        outputs=(TensorSpec("features", FLOAT32, (None, None, manifest["feature_dim"])),))
+    return graphs
+
+
 def expected_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
     """The input/output names, types and (static where known) dims each graph must have for this manifest."""
+    if manifest.get("family", "gpt") == "masked":
+        return _masked_graphs(manifest)
     gpt = manifest["gpt"]
     dim = manifest["text_encoder"]["dim"]
     kv = (gpt["n_layer"], 2, None, gpt["n_head"], None, gpt["head_dim"])

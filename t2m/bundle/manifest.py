@@ -4,6 +4,9 @@ One table (`MANIFEST_FIELDS`) says what every field must be; `check_manifest_fie
 `parse_manifest` turns checked JSON into a `Manifest`. Optional fields have defaults that keep older bundles valid:
 `family` ("gpt", the only family of format 1's first bundles) and `caption_index` (null: the bundle carries no
 index of its training captions, e.g. an imported release).
+
+Each family has its own table: the common fields plus its block (`gpt`, or `masked` for MoMask / MoGenTS token maps),
+so a GPT manifest is checked, field by field and message by message, exactly as before the masked family existed.
 """
 from __future__ import annotations
 
@@ -17,17 +20,24 @@ from t2m.bundle.errors import BundleError
 
 __all__ = [
     "FAMILIES",
+    "FAMILY_FIELDS",
     "FORMAT_VERSION",
+    "LENGTH_GRAPH",
     "MANIFEST_FIELDS",
     "MANIFEST_NAME",
+    "MASKED_FIELDS",
     "OPTIONAL_FILES",
     "REQUIRED_FILES",
     "CaptionIndexInfo",
+    "GptSettings",
     "Manifest",
+    "MaskedSettings",
     "check_manifest_fields",
+    "family_of",
     "parse_manifest",
     "read_manifest",
     "read_manifest_dict",
+    "required_files",
 ]
 
 FORMAT_VERSION = 1
@@ -35,8 +45,10 @@ MANIFEST_NAME = "manifest.json"
 REQUIRED_FILES = ("text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decoder.onnx", "mean.npy", "std.npy",
                   "MODEL_CARD.md")
 CAPTION_INDEX_FILE = "caption_index.npz"
-OPTIONAL_FILES = (CAPTION_INDEX_FILE,)
-FAMILIES = ("gpt",)
+LENGTH_GRAPH = "length.onnx"
+OPTIONAL_FILES = (CAPTION_INDEX_FILE, LENGTH_GRAPH)
+FAMILIES = ("gpt", "masked")
+COMMON_FILES = ("text_encoder.onnx", "tokenizer.json", "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md")
 
 
 def _is_int(value: Any) -> bool:
@@ -63,9 +75,13 @@ def _is_optional_str(value: Any) -> bool:
     return value is None or _is_str(value)
 
 
+def _is_optional_positive(value: Any) -> bool:
+    return value is None or _is_positive_int(value)
+
+
 Check = Callable[[Any], bool]
 POSITIVE = (_is_positive_int, "a positive integer")
-# field path -> (check, what it must be); every field is required
+# field path -> (check, what it must be); every field is required. The GPT family's table (format 1's first).
 MANIFEST_FIELDS: dict[str, tuple[Check, str]] = {
     "format_version": (lambda v: v == FORMAT_VERSION, f"the integer {FORMAT_VERSION}"),
     "name": (_is_str, "a non-empty string"),
@@ -100,6 +116,27 @@ MANIFEST_FIELDS: dict[str, tuple[Check, str]] = {
     "quantization.gpt_step": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
     "files": (lambda v: isinstance(v, dict) and bool(v), "an object {file name: {sha256, bytes}}"),
 }
+_GPT_ONLY = ("end_id", "quantization.gpt_step")
+COMMON_FIELDS = {path: rule for path, rule in MANIFEST_FIELDS.items()
+                 if not path.startswith("gpt.") and path not in _GPT_ONLY}
+_GUIDANCE = (lambda v: _is_number(v) and v >= 0, "a number >= 0")
+_TOP_K = (_is_optional_positive, "null or a positive integer")
+# the masked family (t2m.decoding.masked): token maps of `columns` tokens a row, mask stage then residual layers
+MASKED_FIELDS: dict[str, tuple[Check, str]] = {
+    **{path: rule for path, rule in COMMON_FIELDS.items() if path != "files"},
+    "masked.columns": POSITIVE,
+    "masked.steps": POSITIVE,
+    "masked.guidance": _GUIDANCE,
+    "masked.residual_guidance": _GUIDANCE,
+    "masked.top_k": _TOP_K,
+    "masked.residual_top_k": _TOP_K,
+    "masked.mask_id": (_is_int, "an integer"),
+    "masked.pad_id": (_is_int, "an integer"),
+    "masked.unconditional_branch": (_is_bool, "true or false"),
+    "masked.length_estimator": (_is_bool, "true or false"),
+    "files": COMMON_FIELDS["files"],
+}
+FAMILY_FIELDS: dict[str, dict[str, tuple[Check, str]]] = {"gpt": MANIFEST_FIELDS, "masked": MASKED_FIELDS}
 # optional fields: path -> (check, what it must be)
 OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
     "family": (lambda v: v in FAMILIES, f"one of {list(FAMILIES)}"),
@@ -122,18 +159,30 @@ def _lookup(manifest: Mapping[str, Any], dotted: str, default: Any = _MISSING) -
     return value
 
 
-def check_manifest_fields(manifest: Mapping[str, Any]) -> None:
-    """Every contract field present with the right type, and the fields consistent with each other."""
-    if not isinstance(manifest, Mapping):
-        raise BundleError(f"{MANIFEST_NAME}: must hold a JSON object")
-    for dotted, (check, expected) in MANIFEST_FIELDS.items():
-        value = _lookup(manifest, dotted)
-        if not check(value):
-            raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
-    for dotted, (check, expected) in OPTIONAL_FIELDS.items():
-        value = _lookup(manifest, dotted, None)
-        if value is not None and not check(value):
-            raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
+def family_of(manifest: Mapping[str, Any]) -> str:
+    """The manifest's family ("gpt" when absent); an unknown one is refused naming the field."""
+    family = manifest.get("family", "gpt")
+    check, expected = OPTIONAL_FIELDS["family"]
+    if family is None or not check(family):
+        raise BundleError(f"{MANIFEST_NAME}: field 'family' must be {expected}, got {family!r}")
+    return str(family)
+
+
+def required_files(manifest: Mapping[str, Any]) -> tuple[str, ...]:
+    """The files a bundle of this manifest must hold: the GPT's table, or the masked family's graphs (residual.onnx
+    only with more than one quantiser layer, length.onnx only with a length estimator)."""
+    if family_of(manifest) == "gpt":
+        return REQUIRED_FILES
+    masked = manifest["masked"]
+    names = ["text_encoder.onnx", "tokenizer.json", "masked.onnx"]
+    if manifest["residual_layers"] > 1:
+        names.append("residual.onnx")
+    if masked["length_estimator"]:
+        names.append(LENGTH_GRAPH)
+    return (*names, "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md")
+
+
+def _check_gpt_consistency(manifest: Mapping[str, Any]) -> None:
     if manifest["end_id"] != manifest["codebook_size"]:
         raise BundleError(f"{MANIFEST_NAME}: field 'end_id' is {manifest['end_id']}, expected codebook_size "
                           f"{manifest['codebook_size']} (End is the last logit)")
@@ -141,6 +190,41 @@ def check_manifest_fields(manifest: Mapping[str, Any]) -> None:
     if manifest["max_tokens"] > block_size - 1:
         raise BundleError(f"{MANIFEST_NAME}: field 'gpt.block_size' {block_size} is smaller than max_tokens + 1 = "
                           f"{manifest['max_tokens'] + 1}")
+
+
+def _check_masked_consistency(manifest: Mapping[str, Any]) -> None:
+    """mask_id = K (the class after the codes), pad_id = K (the residual stage's "layer unused" class)."""
+    masked, size = manifest["masked"], manifest["codebook_size"]
+    for field, want in (("mask_id", size), ("pad_id", size)):
+        if masked[field] != want:
+            raise BundleError(f"{MANIFEST_NAME}: field 'masked.{field}' is {masked[field]}, expected codebook_size "
+                              f"{size}")
+    for field in ("top_k", "residual_top_k"):
+        if masked[field] is not None and masked[field] > size:
+            raise BundleError(f"{MANIFEST_NAME}: field 'masked.{field}' is {masked[field]}, more than codebook_size "
+                              f"{size}")
+    if masked["length_estimator"] and LENGTH_GRAPH not in manifest["files"]:
+        raise BundleError(f"{MANIFEST_NAME}: field 'masked.length_estimator' is true but 'files' does not list "
+                          f"{LENGTH_GRAPH!r}")
+
+
+def check_manifest_fields(manifest: Mapping[str, Any]) -> None:
+    """Every contract field of the manifest's family present with the right type, and the fields consistent."""
+    if not isinstance(manifest, Mapping):
+        raise BundleError(f"{MANIFEST_NAME}: must hold a JSON object")
+    family = family_of(manifest)
+    for dotted, (check, expected) in FAMILY_FIELDS[family].items():
+        value = _lookup(manifest, dotted)
+        if not check(value):
+            raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
+    for dotted, (check, expected) in OPTIONAL_FIELDS.items():
+        value = _lookup(manifest, dotted, None)
+        if value is not None and not check(value):
+            raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
+    if family == "gpt":
+        _check_gpt_consistency(manifest)
+    else:
+        _check_masked_consistency(manifest)
     index = manifest.get("caption_index")
     if index is not None and index.get("file") not in manifest["files"]:
         raise BundleError(f"{MANIFEST_NAME}: field 'files' does not list the caption index {index.get('file')!r}")
@@ -157,8 +241,39 @@ class CaptionIndexInfo:
 
 
 @dataclass(frozen=True)
+class GptSettings:
+    """The `gpt` block: the step graph's sizes and the GPT loop's settings."""
+
+    n_layer: int
+    n_head: int
+    head_dim: int
+    block_size: int
+    length_conditioning: bool
+    unconditional_branch: bool
+    default_guidance: float
+    end_id: int
+
+
+@dataclass(frozen=True)
+class MaskedSettings:
+    """The `masked` block: the token map's width and the two stages' decoding settings (t2m.decoding.masked)."""
+
+    columns: int
+    steps: int
+    guidance: float
+    residual_guidance: float
+    top_k: int | None
+    residual_top_k: int | None
+    mask_id: int
+    pad_id: int
+    unconditional_branch: bool
+    length_estimator: bool
+
+
+@dataclass(frozen=True)
 class Manifest:
-    """The typed manifest (the full JSON stays available as `raw`)."""
+    """The typed manifest: the fields every family has, and its family's block (`gpt` or `masked`, the other None).
+    The GPT block's fields stay readable as before (`manifest.n_layer`, ...); the full JSON is `raw`."""
 
     family: str
     name: str
@@ -171,36 +286,84 @@ class Manifest:
     max_tokens: int
     codebook_size: int
     residual_layers: int
-    end_id: int
-    n_layer: int
-    n_head: int
-    head_dim: int
-    block_size: int
-    length_conditioning: bool
-    unconditional_branch: bool
-    default_guidance: float
     text_dim: int
     text_max_length: int
     caption_index: CaptionIndexInfo | None
     files: dict[str, dict[str, Any]]
     raw: dict[str, Any]
+    gpt: GptSettings | None = None
+    masked: MaskedSettings | None = None
+
+    def _gpt(self) -> GptSettings:
+        if self.gpt is None:
+            raise AttributeError(f"a {self.family!r} manifest has no 'gpt' block")
+        return self.gpt
+
+    @property
+    def end_id(self) -> int:
+        return self._gpt().end_id
+
+    @property
+    def n_layer(self) -> int:
+        return self._gpt().n_layer
+
+    @property
+    def n_head(self) -> int:
+        return self._gpt().n_head
+
+    @property
+    def head_dim(self) -> int:
+        return self._gpt().head_dim
+
+    @property
+    def block_size(self) -> int:
+        return self._gpt().block_size
+
+    @property
+    def length_conditioning(self) -> bool:
+        """GPT: the length input; the masked family always knows each map's rows (its length is an input)."""
+        return self._gpt().length_conditioning if self.masked is None else True
+
+    @property
+    def unconditional_branch(self) -> bool:
+        return self.masked.unconditional_branch if self.masked is not None else self._gpt().unconditional_branch
+
+    @property
+    def default_guidance(self) -> float:
+        """The guidance scale a request gets by default (the masked family: its mask stage's)."""
+        return self.masked.guidance if self.masked is not None else self._gpt().default_guidance
+
+
+def _gpt_settings(raw: dict[str, Any]) -> GptSettings:
+    gpt = raw["gpt"]
+    return GptSettings(n_layer=gpt["n_layer"], n_head=gpt["n_head"], head_dim=gpt["head_dim"],
+                       block_size=gpt["block_size"], length_conditioning=gpt["length_conditioning"],
+                       unconditional_branch=gpt["unconditional_branch"],
+                       default_guidance=float(gpt["default_guidance"]), end_id=raw["end_id"])
+
+
+def _masked_settings(raw: dict[str, Any]) -> MaskedSettings:
+    m = raw["masked"]
+    return MaskedSettings(columns=m["columns"], steps=m["steps"], guidance=float(m["guidance"]),
+                          residual_guidance=float(m["residual_guidance"]), top_k=m["top_k"],
+                          residual_top_k=m["residual_top_k"], mask_id=m["mask_id"], pad_id=m["pad_id"],
+                          unconditional_branch=m["unconditional_branch"], length_estimator=m["length_estimator"])
 
 
 def parse_manifest(raw: dict[str, Any]) -> Manifest:
     """Check `raw` (check_manifest_fields) and return its typed view."""
     check_manifest_fields(raw)
-    gpt, text, index = raw["gpt"], raw["text_encoder"], raw.get("caption_index")
+    family, text, index = family_of(raw), raw["text_encoder"], raw.get("caption_index")
     return Manifest(
-        family=raw.get("family", "gpt"), name=raw["name"], version=raw["version"], fps=raw["fps"],
+        family=family, name=raw["name"], version=raw["version"], fps=raw["fps"],
         skeleton=raw["skeleton"], num_joints=raw["num_joints"], feature_dim=raw["feature_dim"],
         frames_per_token=raw["frames_per_token"], max_tokens=raw["max_tokens"], codebook_size=raw["codebook_size"],
-        residual_layers=raw["residual_layers"], end_id=raw["end_id"], n_layer=gpt["n_layer"], n_head=gpt["n_head"],
-        head_dim=gpt["head_dim"], block_size=gpt["block_size"], length_conditioning=gpt["length_conditioning"],
-        unconditional_branch=gpt["unconditional_branch"], default_guidance=float(gpt["default_guidance"]),
-        text_dim=text["dim"], text_max_length=text["max_length"],
+        residual_layers=raw["residual_layers"], text_dim=text["dim"], text_max_length=text["max_length"],
         caption_index=None if index is None else CaptionIndexInfo(index["file"], index["count"],
                                                                   float(index["threshold"])),
-        files=raw["files"], raw=raw)
+        files=raw["files"], raw=raw,
+        gpt=_gpt_settings(raw) if family == "gpt" else None,
+        masked=_masked_settings(raw) if family == "masked" else None)
 
 
 def read_manifest_dict(bundle_dir: Path) -> dict[str, Any]:

@@ -8,8 +8,9 @@ residual.onnx   inputs  codes int64 [B, T, C, R] the layers below ``layer`` are 
                         layer int64 [B]          the layer to predict, 1..R-1
                         cond float32 [B, Dt], length int64 [B]
                 output  logits float32 [B, T, C, K + 1]   (K = pad: "layer unused")
-decoder.onnx    input   codes int64 [B, T, C, R] (a joint VQ; -1 = layer unused)
+decoder.onnx    input   codes int64 [B, T, C, R] (a joint VQ, or a 1D VQ with C = 1; -1 = layer unused)
                 output  features float32 [B, 4T, D]  de-normalised (x * std + mean inside, as the GPT bundle's)
+length.onnx     input   cond float32 [B, Dt]  ->  logits float32 [B, max_tokens + 1] over token-row counts (optional)
 
 B and T are dynamic; C, R, K and Dt are fixed by the model. Guidance runs the condition and null rows as one
 batch. The graphs are the models' own forward passes.
@@ -28,8 +29,10 @@ from t2m.export.onnx_decoder import DecoderGraph
 from t2m.export.parity import TensorParity
 from t2m.model.masked_sampling import generate_token_maps
 from t2m.model.networks.joint_vqvae import JointVQVAE
+from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer
 from t2m.model.networks.residual_transformer import ResidualTransformer
+from t2m.model.networks.vqvae import MotionVQVAE
 from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
 DYNAMIC = {0: "batch", 1: "tokens"}
@@ -62,6 +65,41 @@ class JointDecoderGraph(DecoderGraph):
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:
         return self.vq.decode(codes) * self.std + self.mean
+
+
+class MapDecoderGraph(DecoderGraph):
+    """A 1D VQ's decoder over one-column maps [B, T, 1, R] (MoMask's variant): the column dropped, then the 1D graph
+    (a single-layer VQ also drops the layer axis)."""
+
+    def forward(self, codes: torch.Tensor) -> torch.Tensor:
+        codes = codes[:, :, 0]
+        if self._motion_vq().config.quantizer != "residual":
+            codes = codes[..., 0]
+        return super().forward(codes)
+
+
+class LengthGraph(nn.Module):
+    """cond -> logits over token-row counts 0..max_tokens, the argument order of length.onnx."""
+
+    def __init__(self, model: LengthEstimator) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, cond: torch.Tensor) -> torch.Tensor:
+        return self.model(cond)
+
+
+def map_decoder_graph(vq: JointVQVAE | MotionVQVAE, mean: np.ndarray, std: np.ndarray) -> DecoderGraph:
+    """The decoder.onnx module of either VQ: codes [B, T, C, R] -> features [B, 4T, D]."""
+    graph = JointDecoderGraph(vq, mean, std) if isinstance(vq, JointVQVAE) else MapDecoderGraph(vq, mean, std)
+    return graph.eval()
+
+
+def map_shape(vq: JointVQVAE | MotionVQVAE) -> tuple[int, int]:
+    """(columns, layers) of the code maps a VQ decodes (a 1D VQ: one column; a single-layer one: one layer)."""
+    if isinstance(vq, JointVQVAE):
+        return vq.config.columns, vq.config.residual_layers
+    return 1, vq.config.residual_layers if vq.config.quantizer == "residual" else 1
 
 
 def example_inputs(model: MaskedTransformer | ResidualTransformer, batch: int = 2, rows: int = 5,
@@ -102,15 +140,22 @@ def export_residual(model: ResidualTransformer, path: str | Path) -> Path:
     )
 
 
-def export_joint_decoder(vq: JointVQVAE, mean: np.ndarray, std: np.ndarray, path: str | Path) -> Path:
-    """Write decoder.onnx for a joint VQ (input ``codes`` [B, T, C, R], output ``features`` [B, 4T, D])."""
-    c = vq.eval().config
+def export_joint_decoder(vq: JointVQVAE | MotionVQVAE, mean: np.ndarray, std: np.ndarray, path: str | Path) -> Path:
+    """Write decoder.onnx for a joint VQ or a 1D one (input ``codes`` [B, T, C, R], output ``features`` [B, 4T, D])."""
+    columns, layers = map_shape(vq.eval())
     generator = torch.Generator().manual_seed(0)
-    codes = torch.randint(0, c.nb_code, (2, 5, c.columns, c.residual_layers), generator=generator)
+    codes = torch.randint(0, vq.config.nb_code, (2, 5, columns, layers), generator=generator)
     return export_graph(
-        JointDecoderGraph(vq, mean, std).eval(), (codes,), path, input_names=["codes"], output_names=["features"],
+        map_decoder_graph(vq, mean, std), (codes,), path, input_names=["codes"], output_names=["features"],
         dynamic_axes={"codes": DYNAMIC, "features": {0: "batch", 1: "frames"}},
     )
+
+
+def export_length(model: LengthEstimator, path: str | Path) -> Path:
+    """Write length.onnx (input ``cond`` [B, Dt], output ``logits`` [B, max_tokens + 1])."""
+    cond = torch.randn(2, model.eval().config.text_dim, generator=torch.Generator().manual_seed(0))
+    return export_graph(LengthGraph(model).eval(), (cond,), path, input_names=["cond"], output_names=["logits"],
+                        dynamic_axes={"cond": {0: "batch"}, "logits": {0: "batch"}})
 
 
 # --- parity -----------------------------------------------------------------------------------------------------
@@ -135,18 +180,30 @@ def transformer_parity(model: MaskedTransformer | ResidualTransformer, onnx_path
     return TensorParity(tuple(actual.shape), float(difference.max()))
 
 
-def joint_decoder_parity(vq: JointVQVAE, mean: np.ndarray, std: np.ndarray, onnx_path: str | Path, batch: int = 2,
-                         rows: int = 6, seed: int = 0) -> TensorParity:
+def joint_decoder_parity(vq: JointVQVAE | MotionVQVAE, mean: np.ndarray, std: np.ndarray, onnx_path: str | Path,
+                         batch: int = 2, rows: int = 6, seed: int = 0) -> TensorParity:
     """decoder.onnx vs vq.decode(codes) * std + mean, on random codes with some unused (-1) upper layers."""
-    c = vq.eval().config
+    columns, layers = map_shape(vq.eval())
     generator = torch.Generator().manual_seed(seed)
-    codes = torch.randint(0, c.nb_code, (batch, rows, c.columns, c.residual_layers), generator=generator)
+    codes = torch.randint(0, vq.config.nb_code, (batch, rows, columns, layers), generator=generator)
     codes[0, :, :, 1:] = -1  # the first motion with its first layer only
     with torch.no_grad():
-        expected = (JointDecoderGraph(vq, mean, std)(codes)).numpy()
+        expected = (map_decoder_graph(vq, mean, std)(codes)).numpy()
     (actual,) = ort_session(onnx_path).run(None, {"codes": codes.numpy()})
     if actual.shape != expected.shape:
         raise ValueError(f"decoder.onnx returned {list(actual.shape)}, PyTorch {list(expected.shape)}")
+    return TensorParity(tuple(actual.shape), float(np.abs(actual - expected).max()))
+
+
+def length_parity(model: LengthEstimator, onnx_path: str | Path, batch: int = 3, seed: int = 0) -> TensorParity:
+    """length.onnx vs the estimator on random text features (and a null row)."""
+    cond = torch.randn(batch, model.eval().config.text_dim, generator=torch.Generator().manual_seed(seed))
+    cond[-1] = 0.0
+    with torch.no_grad():
+        expected = model(cond).numpy()
+    (actual,) = ort_session(onnx_path).run(None, {"cond": cond.numpy()})
+    if actual.shape != expected.shape:
+        raise ValueError(f"length.onnx returned {list(actual.shape)}, PyTorch {list(expected.shape)}")
     return TensorParity(tuple(actual.shape), float(np.abs(actual - expected).max()))
 
 
@@ -159,13 +216,18 @@ class DecodeParity:
     differing_tokens: int
 
 
-def decode_parity(masked: MaskedTransformer, residual: ResidualTransformer, masked_path: str | Path,
-                  residual_path: str | Path, length: list[int], steps: int = 10, guidance: float = 4.0,
+def decode_parity(masked: MaskedTransformer, residual: ResidualTransformer | None, masked_path: str | Path,
+                  residual_path: str | Path | None, length: list[int], steps: int = 10, guidance: float = 4.0,
                   residual_guidance: float = 5.0, seed: int = 0) -> DecodeParity:
     """The shared decoding loop (t2m.decoding.masked) over the modules and over the graphs: greedy (top-k 1), so any
-    token that differs is a difference in the graphs' logits, not in random draws."""
-    graphs = (OnnxMaskedStep(ort_session(masked_path), masked.config.columns, masked.config.mask_id),
-              OnnxResidualStep(ort_session(residual_path), residual.config.residual_layers, residual.pad_id))
+    token that differs is a difference in the graphs' logits, not in random draws. No residual model (a single-layer
+    VQ): the mask stage only."""
+    residual_graph = None
+    if residual is not None:
+        if residual_path is None:
+            raise ValueError("decode_parity: a residual model needs its residual.onnx")
+        residual_graph = OnnxResidualStep(ort_session(residual_path), residual.config.residual_layers, residual.pad_id)
+    graphs = (OnnxMaskedStep(ort_session(masked_path), masked.config.columns, masked.config.mask_id), residual_graph)
     cond = torch.randn(len(length), masked.config.text_dim, generator=torch.Generator().manual_seed(seed))
     results = [generate_token_maps(m, r, cond, length, steps=steps, guidance=guidance,
                                    residual_guidance=residual_guidance, greedy=True)

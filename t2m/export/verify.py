@@ -22,6 +22,7 @@ from t2m.bundle import (
     expected_graphs,
     parse_manifest,
     read_manifest_dict,
+    required_files,
 )
 
 __all__ = ["check_arrays_and_tokenizer", "check_graph", "main", "verify_bundle"]
@@ -80,7 +81,7 @@ def verify_bundle(bundle_dir: str | Path, *, check_hashes: bool = True) -> dict[
     bundle_dir = Path(bundle_dir)
     manifest = read_manifest_dict(bundle_dir)
     parse_manifest(manifest)
-    check_files(bundle_dir, manifest["files"], check_hashes=check_hashes)
+    check_files(bundle_dir, manifest["files"], check_hashes=check_hashes, required=required_files(manifest))
     check_arrays_and_tokenizer(bundle_dir, manifest)
     for name, spec in expected_graphs(manifest).items():
         check_graph(bundle_dir / name, spec)

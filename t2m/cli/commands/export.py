@@ -1,6 +1,8 @@
 """`t2m export`: a VQ run + a GPT run -> a verified model bundle (ONNX graphs, tokenizer, manifest, model card).
 
     t2m export --vq runs/vq --gpt runs/gpt --int8 text -o t2m/bundles/default
+    t2m export --family masked --vq runs/joint_vq --masked runs/masked --residual runs/residual \
+        [--length runs/length] -o DIR
 
 The GPT run's config.json tells the text encoder, the condition dropout (-> unconditional_branch) and the
 data directory, whose summary.json gives the training data and its licence (or pass --data-summary).
@@ -16,7 +18,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("export", help="training runs -> ONNX model bundle for the service",
                                    description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--vq", type=Path, required=True, metavar="RUN", help="VQ-VAE run directory")
-    parser.add_argument("--gpt", type=Path, required=True, metavar="RUN", help="GPT run directory")
+    parser.add_argument("--family", choices=("gpt", "masked"), default="gpt",
+                        help="model family (default gpt; masked: MoMask / MoGenTS token maps)")
+    parser.add_argument("--gpt", type=Path, default=None, metavar="RUN", help="GPT run directory (family gpt)")
+    parser.add_argument("--masked", type=Path, default=None, metavar="RUN", help="masked run directory (family masked)")
+    parser.add_argument("--residual", type=Path, default=None, metavar="RUN",
+                        help="residual run directory (family masked, a VQ with more than one layer)")
+    parser.add_argument("--length", type=Path, default=None, metavar="RUN",
+                        help="length estimator run directory (family masked, optional: null durations)")
+    parser.add_argument("--steps", type=int, default=10, help="family masked: re-masking steps (default 10)")
+    parser.add_argument("--residual-guidance", type=float, default=5.0,
+                        help="family masked: the residual stage's guidance scale (default 5.0)")
     parser.add_argument("--text-encoder", choices=("minilm", "clip"), default=None,
                         help="text encoder (default: the one the GPT run was trained with)")
     parser.add_argument("--clip-weights", type=Path, default=None, metavar="PATH", help="local CLIP ViT-B/32 weights")
@@ -29,10 +41,52 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--data-summary", type=Path, default=None, metavar="FILE",
                         help="the training data's summary.json (default: DATA_DIR/summary.json of the GPT run)")
     parser.add_argument("--guidance", type=float, default=None,
-                        help="default guidance scale (default 3.0 with a trained unconditional branch, else 1.0)")
+                        help="default guidance scale (default 3.0 with a trained unconditional branch, else 1.0; "
+                             "family masked: the mask stage's, default 4.0)")
     parser.add_argument("--skip-parity", action="store_true", help="do not compare onnxruntime with PyTorch")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="bundle directory to write")
     parser.set_defaults(func=run)
+
+
+_MASKED_ONLY = ("masked", "residual", "length")
+
+
+def _check_family_arguments(args: argparse.Namespace) -> None:
+    from t2m.cli.main import CliError
+
+    if args.family == "gpt":
+        given = [f"--{name}" for name in _MASKED_ONLY if getattr(args, name) is not None]
+        if given:
+            raise CliError(f"{', '.join(given)}: only with --family masked")
+        if args.gpt is None:
+            raise CliError("--gpt RUN is required (or --family masked with --masked RUN)")
+        return
+    if args.masked is None:
+        raise CliError("--family masked needs --masked RUN")
+    if args.gpt is not None:
+        raise CliError("--gpt: only with --family gpt")
+    if args.int8 != "none":
+        raise CliError("--int8 is not available for --family masked")
+    if args.steps < 1:
+        raise CliError(f"--steps must be >= 1, got {args.steps}")
+    for flag, value in (("--guidance", args.guidance), ("--residual-guidance", args.residual_guidance)):
+        if value is not None and value < 0:
+            raise CliError(f"{flag} must be >= 0, got {value}")
+
+
+def _run_masked(args: argparse.Namespace) -> int:
+    from t2m.export.masked_exporter import MaskedDecoding, export_masked_from_runs
+
+    decoding = MaskedDecoding(steps=args.steps, guidance=4.0 if args.guidance is None else args.guidance,
+                              residual_guidance=args.residual_guidance)
+    manifest, checks = export_masked_from_runs(
+        args.vq, args.masked, args.output, residual_run=args.residual, length_run=args.length, name=args.name,
+        version=args.version, model_card=args.model_card, data_summary=args.data_summary, decoding=decoding,
+        check_parity=not args.skip_parity)
+    print(json.dumps({"parity": checks.parity}, indent=2))
+    total = sum(entry["bytes"] for entry in manifest["files"].values())
+    print(f"bundle {manifest['name']} {manifest['version']} written to {args.output} ({total / 1e6:.1f} MB, verified)")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,7 +94,10 @@ def run(args: argparse.Namespace) -> int:
 
     from t2m.export.exporter import export_from_runs
 
+    _check_family_arguments(args)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    if args.family == "masked":
+        return _run_masked(args)
     manifest, checks = export_from_runs(
         args.vq, args.gpt, args.output, text_encoder=args.text_encoder, clip_weights=args.clip_weights,
         int8=args.int8, name=args.name, version=args.version, model_card=args.model_card,

@@ -8,7 +8,7 @@ families this service can run.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,9 @@ from t2m.bundle import (
     check_files,
     check_graph_io,
     expected_graphs,
-    read_manifest,
+    parse_manifest,
+    read_manifest_dict,
+    required_files,
 )
 
 __all__ = ["Bundle", "BundleError", "Manifest", "load_bundle", "session_options"]
@@ -33,11 +35,20 @@ _ORT_DTYPES = {"tensor(float)": "float32", "tensor(int64)": "int64", "tensor(int
                "tensor(float16)": "float16", "tensor(bool)": "bool"}
 
 
+SERVED_FAMILIES = ("gpt", "masked")
+
+
+def _check_served_family(raw: dict) -> None:
+    """Refuse a family this service has no decoding loop for before its family-specific fields are read."""
+    family = raw.get("family", "gpt")
+    if family not in SERVED_FAMILIES:
+        raise BundleError(f"manifest.json: field 'family' must be one of {list(SERVED_FAMILIES)} (the families this "
+                          f"service runs), got {family!r}")
+
+
 def _check_family(manifest: Manifest) -> None:
-    """The decoding loops this service has: the GPT over one layer of codes."""
-    if manifest.family != "gpt":
-        raise BundleError(f"manifest.json: field 'family' is {manifest.family!r}; this service runs 'gpt' bundles")
-    if manifest.residual_layers != 1:
+    """The decoding loops this service has: the GPT over one layer of codes, the masked family over token maps."""
+    if manifest.family == "gpt" and manifest.residual_layers != 1:
         raise BundleError(f"manifest.json: field 'residual_layers' is {manifest.residual_layers}; this service "
                           "samples one code per step and serves single-layer bundles only")
 
@@ -71,16 +82,18 @@ def _check_session(session: ort.InferenceSession, file: str, manifest: Manifest)
 
 @dataclass
 class Bundle:
-    """A verified bundle: its manifest, the three onnxruntime sessions and the tokenizer file."""
+    """A verified bundle: its manifest, its onnxruntime sessions and the tokenizer file. `gpt_session` is the GPT
+    family's step graph (None for the masked family); `sessions` holds every graph by file name."""
 
     path: Path
     manifest: Manifest
     text_session: ort.InferenceSession
-    gpt_session: ort.InferenceSession
+    gpt_session: ort.InferenceSession | None
     decoder_session: ort.InferenceSession
     gpt_has_length_input: bool
     mean: np.ndarray
     std: np.ndarray
+    sessions: dict[str, ort.InferenceSession] = field(default_factory=dict)
 
     @property
     def tokenizer_file(self) -> Path:
@@ -101,16 +114,19 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
                 inter_op_threads: int = 1) -> Bundle:
     """Verify the bundle at `path` and open its graphs; raises BundleError naming the first problem found."""
     path = Path(path)
-    manifest = read_manifest(path)
-    check_files(path, manifest.files, check_hashes=check_hashes)
+    raw = read_manifest_dict(path)
+    _check_served_family(raw)
+    manifest = parse_manifest(raw)
+    check_files(path, manifest.files, check_hashes=check_hashes, required=required_files(raw))
     _check_family(manifest)
     options = session_options(intra_op_threads, inter_op_threads)
     sessions = {}
-    for file in ("text_encoder.onnx", "gpt_step.onnx", "decoder.onnx"):
+    for file in expected_graphs(raw):
         sessions[file] = _open_session(path / file, options)
         _check_session(sessions[file], file, manifest)
-    log.info("loaded bundle %s %s from %s", manifest.name, manifest.version, path)
+    log.info("loaded bundle %s %s (%s) from %s", manifest.name, manifest.version, manifest.family, path)
     return Bundle(path=path, manifest=manifest, text_session=sessions["text_encoder.onnx"],
-                  gpt_session=sessions["gpt_step.onnx"], decoder_session=sessions["decoder.onnx"],
-                  gpt_has_length_input=manifest.length_conditioning, mean=_load_array(path / "mean.npy", manifest),
-                  std=_load_array(path / "std.npy", manifest))
+                  gpt_session=sessions.get("gpt_step.onnx"), decoder_session=sessions["decoder.onnx"],
+                  gpt_has_length_input=manifest.gpt is not None and manifest.length_conditioning,
+                  mean=_load_array(path / "mean.npy", manifest), std=_load_array(path / "std.npy", manifest),
+                  sessions=sessions)

@@ -2,7 +2,9 @@
 
 Per request: its texts through the text graph as one batch; its segments' codes sampled in lockstep with every other
 request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
-motion.features. Nothing here knows about HTTP.
+motion.features. Nothing here knows about HTTP. The family-specific part (which codes, from which graphs) is a codes
+object: GptCodes (t2m.decoding.gpt) or MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]); the text
+encoding, the unknown-text check, the single decode and the joints are shared.
 """
 from __future__ import annotations
 
@@ -13,11 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from t2m.bundle import CaptionIndex
-from t2m.decoding.gpt import SamplingJob, sample_codes
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.decoder import Decoder
+from t2m.service.engine.gpt_codes import GptCodes
+from t2m.service.engine.masked_codes import MaskedCodes
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.text import TextEncoder, load_tokenizer
 from t2m.service.engine.types import (
@@ -27,7 +30,6 @@ from t2m.service.engine.types import (
     Motion,
     RequestLimitError,
     SegmentSpan,
-    tokens_for_duration,
 )
 
 __all__ = ["OnnxEngine"]
@@ -51,8 +53,7 @@ class OnnxEngine:
             raise BundleError(f"manifest.json: field 'num_joints' is {manifest.num_joints} but skeleton "
                               f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
-        self.step = OnnxGptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
-                            bundle.gpt_has_length_input)
+        self.codes: GptCodes | MaskedCodes = MaskedCodes(bundle) if manifest.family == "masked" else GptCodes(bundle)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
         self.unknown_text = unknown_text
         info = manifest.caption_index
@@ -67,7 +68,8 @@ class OnnxEngine:
             skeleton=manifest.skeleton, joint_names=tuple(self.skeleton.joint_names),
             parents=tuple(int(p) for p in self.skeleton.parents),
             details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
-                        if key in raw}, "unknown_text": self._unknown_text_details()})
+                        if key in raw}, "unknown_text": self._unknown_text_details(),
+                     **({"family": manifest.family, "masked": raw["masked"]} if manifest.masked is not None else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -114,7 +116,7 @@ class OnnxEngine:
                        on_step: Callable[[int], None] | None = None) -> list[Motion | BaseException]:
         """Generate all requests with their GPT steps batched together; a request's failure lands in its slot."""
         results: list[Motion | BaseException | None] = [None] * len(requests)
-        jobs: list[SamplingJob] = []
+        jobs: list = []
         owners: list[int] = []
         notes: list[list[str]] = []
         for index, request in enumerate(requests):
@@ -122,7 +124,7 @@ class OnnxEngine:
                 results[index] = GenerationCancelled("request cancelled before it started")
                 continue
             try:
-                job = self._job(request)
+                job = self.codes.job(request, self.text, self.limits)
                 notes.append(self.unknown_text_warnings([s.text for s in request.segments], job.conds))
                 jobs.append(job)
                 owners.append(index)
@@ -132,7 +134,7 @@ class OnnxEngine:
                 log.exception("text encoding failed")
                 results[index] = error
         if jobs:
-            codes = sample_codes(self.step, jobs, self.limits.max_tokens, self.bundle.manifest.end_id, on_step)
+            codes = self.codes.sample(jobs, self.limits.max_tokens, on_step)
             for index, segment_codes, warnings in zip(owners, codes, notes):
                 request = requests[index]
                 if segment_codes is None:
@@ -145,21 +147,12 @@ class OnnxEngine:
                     results[index] = error
         return results  # type: ignore[return-value]
 
-    def _job(self, request: GenerationRequest) -> SamplingJob:
-        limits = self.limits
-        targets = [None if s.duration is None else tokens_for_duration(s.duration, limits.fps,
-                                                                       limits.frames_per_token)
-                   for s in request.segments]
-        for index, target in enumerate(targets):
-            if target is not None and target > limits.max_tokens:
-                raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
-                                 f"{limits.max_tokens}")
-        if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
-            raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
-        conds = self.text.encode([s.text for s in request.segments])
-        return SamplingJob(conds=conds, targets=targets, guidance=request.guidance,
-                           temperature=request.temperature, top_k=request.top_k,
-                           rng=np.random.default_rng(request.seed), cancelled=lambda: request.cancelled)
+    @property
+    def step(self) -> OnnxGptStep:
+        """The GPT family's step graph (t2m.decoding.gpt.GptStep), as tests drive it directly."""
+        if not isinstance(self.codes, GptCodes):
+            raise AttributeError(f"a {self.bundle.manifest.family!r} bundle has no GPT step")
+        return self.codes.step
 
     def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray], warnings: list[str]) -> Motion:
         per_token = self.limits.frames_per_token

@@ -1,0 +1,46 @@
+"""The GPT family's codes for the engine: one code per step from gpt_step.onnx (t2m.decoding.gpt), End-terminated
+free-length segments, all requests' segments stepped in lockstep."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from t2m.decoding.gpt import SamplingJob, sample_codes
+from t2m.service.engine.bundle import Bundle
+from t2m.service.engine.onnx_step import OnnxGptStep
+from t2m.service.engine.text import TextEncoder
+from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+
+__all__ = ["GptCodes"]
+
+
+class GptCodes:
+    """Requests -> per-segment code sequences [n] with the bundle's GPT step graph."""
+
+    def __init__(self, bundle: Bundle) -> None:
+        manifest = bundle.manifest
+        if bundle.gpt_session is None:  # pragma: no cover - the loader opens it for every GPT bundle
+            raise ValueError("a GPT bundle needs its gpt_step.onnx session")
+        self.step = OnnxGptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
+                                bundle.gpt_has_length_input)
+        self.end_id = manifest.end_id
+
+    def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
+        targets = [None if s.duration is None else tokens_for_duration(s.duration, limits.fps,
+                                                                       limits.frames_per_token)
+                   for s in request.segments]
+        for index, target in enumerate(targets):
+            if target is not None and target > limits.max_tokens:
+                raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
+                                        f"{limits.max_tokens}")
+        if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
+            raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+        conds = text.encode([s.text for s in request.segments])
+        return SamplingJob(conds=conds, targets=targets, guidance=request.guidance,
+                           temperature=request.temperature, top_k=request.top_k,
+                           rng=np.random.default_rng(request.seed), cancelled=lambda: request.cancelled)
+
+    def sample(self, jobs: Sequence[SamplingJob], max_tokens: int,
+               on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
+        return sample_codes(self.step, jobs, max_tokens, self.end_id, on_step)

@@ -1,0 +1,91 @@
+"""The masked family's codes for the engine (MoMask / MoGenTS): per segment a token map [rows, C, R] from
+masked.onnx (confidence re-masking) and residual.onnx (one pass per layer) through t2m.decoding.masked, every
+segment of every request in one batch, each request drawing from its own seeded generator.
+
+Rows per segment come from its duration (tokens_for_duration); a null duration is drawn from length.onnx's
+distribution with the request's generator (one uniform per null segment, in segment order, before the token draws),
+or refused naming the segment's duration when the bundle has no length estimator. Request options: `guidance` is
+the mask stage's scale, `temperature` and `top_k` (null: the manifest's) apply to the mask stage; the residual stage
+uses the manifest's settings.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import onnxruntime as ort
+
+from t2m.decoding.masked import MaskedJob, sample_token_maps
+from t2m.service.engine.bundle import Bundle
+from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+from t2m.service.engine.text import TextEncoder
+from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+
+__all__ = ["MaskedCodes", "draw_rows"]
+
+
+def draw_rows(logits: np.ndarray, rng: np.random.Generator, max_tokens: int, min_rows: int = 1) -> int:
+    """A row count from length logits [max_tokens + 1] (softmax, counts below `min_rows` excluded): one uniform."""
+    logits = np.asarray(logits, dtype=np.float64)[: max_tokens + 1].copy()
+    logits[:min_rows] = -np.inf
+    probabilities = np.exp(logits - logits.max())
+    cumulative = np.cumsum(probabilities / probabilities.sum())
+    index = int(np.searchsorted(cumulative, rng.random(), side="right"))
+    return min(max(index, min_rows), max_tokens)
+
+
+class MaskedCodes:
+    """Requests -> per-segment token maps [rows, C, R] with the bundle's masked (and residual) graphs."""
+
+    def __init__(self, bundle: Bundle) -> None:
+        manifest = bundle.manifest
+        settings = manifest.masked
+        if settings is None:  # pragma: no cover - the engine picks this class for masked bundles only
+            raise ValueError("a masked bundle needs its 'masked' block")
+        self.settings = settings
+        self.masked = OnnxMaskedStep(bundle.sessions["masked.onnx"], settings.columns, settings.mask_id)
+        residual = bundle.sessions.get("residual.onnx")
+        self.residual = (None if residual is None
+                         else OnnxResidualStep(residual, manifest.residual_layers, settings.pad_id))
+        self.length: ort.InferenceSession | None = bundle.sessions.get("length.onnx")
+
+    def _check_durations(self, request: GenerationRequest, limits: ModelLimits) -> None:
+        """Before any graph runs: each duration fits max_tokens; a null one needs the length estimator."""
+        for index, segment in enumerate(request.segments):
+            if segment.duration is None:
+                if self.length is None:
+                    raise RequestLimitError(f"segments.{index}.duration: model {limits.name!r} has no length "
+                                            "estimator; give this segment a duration in seconds")
+                continue
+            target = tokens_for_duration(segment.duration, limits.fps, limits.frames_per_token)
+            if target > limits.max_tokens:
+                raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
+                                        f"{limits.max_tokens}")
+
+    def _rows(self, request: GenerationRequest, conds: np.ndarray, rng: np.random.Generator,
+              limits: ModelLimits) -> list[int]:
+        free = [i for i, s in enumerate(request.segments) if s.duration is None]
+        rows = [0 if s.duration is None else tokens_for_duration(s.duration, limits.fps, limits.frames_per_token)
+                for s in request.segments]
+        if free and self.length is not None:
+            (logits,) = self.length.run(["logits"], {"cond": conds[free]})
+            for index, segment_logits in zip(free, logits):
+                rows[index] = draw_rows(segment_logits, rng, limits.max_tokens)
+        return rows
+
+    def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> MaskedJob:
+        self._check_durations(request, limits)
+        if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
+            raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+        conds = text.encode([s.text for s in request.segments])
+        rng = np.random.default_rng(request.seed)
+        s = self.settings
+        return MaskedJob(conds=conds, rows=self._rows(request, conds, rng, limits), rng=rng, steps=s.steps,
+                         guidance=request.guidance, residual_guidance=s.residual_guidance,
+                         temperature=request.temperature,
+                         top_k=request.top_k if request.top_k is not None else s.top_k,
+                         residual_top_k=s.residual_top_k, cancelled=lambda: request.cancelled)
+
+    def sample(self, jobs: Sequence[MaskedJob], max_tokens: int,
+               on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
+        return sample_token_maps(self.masked, self.residual, jobs, on_step)
