@@ -294,6 +294,18 @@ def training_data_entry(summary_path: Path) -> dict[str, str]:
     return {"name": summary["name"], "license": summary["license"], "attribution": attribution}
 
 
+def run_training_data(run: Path, run_data: Mapping[str, Any], vq_record: Mapping[str, Any],
+                      data_summary: str | Path | None) -> dict[str, str]:
+    """The manifest's training_data for a model run: from --data-summary, else the summary.json of the data directory
+    the run (or its VQ run) recorded."""
+    if data_summary is None:
+        data_dir = run_data.get("data_dir") or vq_record.get("data", {}).get("data_dir")
+        if not data_dir:
+            raise ValueError(f"{run}/config.json records no data_dir; pass --data-summary DATA/summary.json")
+        data_summary = Path(data_dir) / "summary.json"
+    return training_data_entry(Path(data_summary))
+
+
 def export_from_runs(
     vq_run: str | Path,
     gpt_run: str | Path,
@@ -337,12 +349,7 @@ def export_from_runs(
         if not clip_weights:
             raise ValueError("--clip-weights is required for the clip text encoder")
 
-    if data_summary is None:
-        data_dir = gpt_data.get("data_dir") or vq_record.get("data", {}).get("data_dir")
-        if not data_dir:
-            raise ValueError(f"{gpt_run}/config.json records no data_dir; pass --data-summary DATA/summary.json")
-        data_summary = Path(data_dir) / "summary.json"
-    training_data = training_data_entry(Path(data_summary))
+    training_data = run_training_data(gpt_run, gpt_data, vq_record, data_summary)
     cond_drop = float((gpt_data.get("training") or {}).get("cond_drop", 0.0))
     unconditional = cond_drop > 0
     guidance = default_guidance if default_guidance is not None else (3.0 if unconditional else 1.0)

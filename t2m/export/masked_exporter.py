@@ -240,7 +240,7 @@ def export_masked_from_runs(
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """A verified masked bundle from a joint_vq (or 1D vq) run, a masked run, a residual run (when the VQ has more
     than one layer) and an optional length run. ``text_source`` replaces building the run's text encoder (tests)."""
-    from t2m.export.exporter import _normalisation, clip_text_source, minilm_text_source, training_data_entry
+    from t2m.export.exporter import _normalisation, clip_text_source, minilm_text_source, run_training_data
     from t2m.model.evaluation.masked_family import load_run
     from t2m.model.training.checkpoint import read_run_config
 
@@ -264,12 +264,7 @@ def export_masked_from_runs(
     kind = text.get("kind", "minilm") if isinstance(text, dict) else str(text)
     if kind == "clip" and not text.get("clip_weights") and text_source is None:
         raise ValueError(f"{masked_run}/config.json records no clip_weights for its clip text encoder")
-    if data_summary is None:
-        data_dir = masked_data.get("data_dir") or vq_record.get("data", {}).get("data_dir")
-        if not data_dir:
-            raise ValueError(f"{masked_run}/config.json records no data_dir; pass --data-summary DATA/summary.json")
-        data_summary = Path(data_dir) / "summary.json"
-    training_data = training_data_entry(Path(data_summary))
+    training_data = run_training_data(masked_run, masked_data, vq_record, data_summary)
     cond_drop = float((masked_data.get("training") or {}).get("cond_drop", 0.0))
     mean, std = _normalisation(vq_run, vq_record)
     lines = [f"- VQ run: `{vq_run.name}` (step {vq_record.get('step')})",
