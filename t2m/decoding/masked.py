@@ -104,6 +104,20 @@ def _softmax_at(logits: np.ndarray, chosen: np.ndarray) -> np.ndarray:
     return probs[np.arange(len(chosen)), chosen] / probs.sum(axis=1)
 
 
+def _draws(logits: np.ndarray, jobs: Sequence[MaskedJob], segments: list[_Segment], guided: bool,
+           stage: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per segment (guided logits over its real tokens, the codes drawn from them) with its job's settings for
+    `stage` ("mask": guidance, top_k; "residual": residual_guidance, residual_top_k), in segment order."""
+    count, out = len(segments), []
+    logits = logits.reshape(len(logits), -1, logits.shape[-1])
+    for index, segment in enumerate(segments):
+        job = jobs[segment.job]
+        scale, top_k = ((job.guidance, job.top_k) if stage == "mask" else (job.residual_guidance, job.residual_top_k))
+        chosen = _guided(logits, index, count, scale, guided)[:segment.tokens.size]   # its real tokens only
+        out.append((chosen, draw_tokens(chosen, job.temperature, top_k, job.rng, job.greedy)))
+    return out
+
+
 def _first_layer(step: MaskedStep, jobs: Sequence[MaskedJob], segments: list[_Segment], steps: int,
                  on_call: Callable[[int], None] | None) -> None:
     columns, count = step.columns, len(segments)
@@ -123,11 +137,8 @@ def _first_layer(step: MaskedStep, jobs: Sequence[MaskedJob], segments: list[_Se
         logits = step(np.concatenate([tokens_in, tokens_in]) if guided else tokens_in, cond, length)
         if on_call is not None:
             on_call(len(cond))
-        logits = logits.reshape(len(cond), rows * columns, -1)
-        for index, segment in enumerate(segments):
-            job = jobs[segment.job]
-            chosen = _guided(logits, index, count, job.guidance, guided)[:segment.rows * columns]
-            drawn = draw_tokens(chosen, job.temperature, job.top_k, job.rng, job.greedy)
+        for index, (segment, (chosen, drawn)) in enumerate(zip(segments, _draws(logits, jobs, segments, guided,
+                                                                                  "mask"))):
             masked = masked_now[index]
             segment.tokens[masked] = drawn[masked]
             confidence = _softmax_at(chosen, drawn)
@@ -147,11 +158,8 @@ def _residual_layers(step: ResidualStep, jobs: Sequence[MaskedJob], segments: li
         logits = step(np.concatenate([codes, codes]) if guided else codes, layer, cond, length)
         if on_call is not None:
             on_call(len(cond))
-        logits = logits.reshape(len(cond), rows * columns, -1)
-        for index, segment in enumerate(segments):
-            job = jobs[segment.job]
-            chosen = _guided(logits, index, count, job.residual_guidance, guided)[:segment.rows * columns]
-            drawn = draw_tokens(chosen, job.temperature, job.residual_top_k, job.rng, job.greedy)
+        for index, (segment, (_, drawn)) in enumerate(zip(segments, _draws(logits, jobs, segments, guided,
+                                                                            "residual"))):
             drawn[drawn == step.pad_id] = -1
             codes[index, :segment.rows, :, q] = drawn.reshape(segment.rows, columns)
     return codes
