@@ -19,10 +19,14 @@ import os
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from torch import nn
+
+if TYPE_CHECKING:
+    from tokenizers import Tokenizer
 
 MINILM_MAX_LENGTH = 64
 
@@ -61,6 +65,30 @@ class TextEncoder(ABC):
         return np.concatenate(chunks).astype(np.float32)
 
 
+class TokenizedTextEncoder(TextEncoder):
+    """An encoder made of a `tokenizers` Tokenizer (already set to the encoder's truncation and padding) and a torch
+    module over its ids: tokenize, export and save the tokenizer the same way for MiniLM and CLIP."""
+
+    tokenizer: Tokenizer
+    module: nn.Module
+
+    def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        encodings = self.tokenizer.encode_batch(list(texts))
+        input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
+        attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
+        return input_ids, attention_mask
+
+    def export_module(self) -> nn.Module:
+        return self.module
+
+    def save_tokenizer(self, path: str | Path) -> Path:
+        """The tokenizer.json with the truncation and padding the encoder was set up with."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.tokenizer.save(str(path))
+        return path
+
+
 # --- MiniLM ----------------------------------------------------------------------------------------------------
 
 
@@ -94,7 +122,7 @@ class MeanPooledBert(nn.Module):
         return pooled
 
 
-class MiniLMEncoder(TextEncoder):
+class MiniLMEncoder(TokenizedTextEncoder):
     """all-MiniLM-L6-v2 (384-d, unit length), tokenised by the `tokenizers` library as the service does."""
 
     name = "minilm"
@@ -120,27 +148,12 @@ class MiniLMEncoder(TextEncoder):
         for parameter in self.module.parameters():
             parameter.requires_grad_(False)
 
-    def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        encodings = self.tokenizer.encode_batch(list(texts))
-        input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
-        attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
-        return input_ids, attention_mask
-
-    def export_module(self) -> nn.Module:
-        return self.module
-
-    def save_tokenizer(self, path: str | Path) -> Path:
-        """tokenizer.json with truncation to max_length and batch-longest padding switched on."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.tokenizer.save(str(path))
-        return path
 
 
 # --- CLIP -----------------------------------------------------------------------------------------------------
 
 
-class ClipEncoder(TextEncoder):
+class ClipEncoder(TokenizedTextEncoder):
     """OpenAI's CLIP text features as T2M-GPT used them: ``encode_text``, float32, not normalised (512-d for
     ViT-B/32), with OpenAI's tokenization (at most 77 tokens, zero padded to the batch's longest) from the same
     tokenizer.json the bundle ships."""
@@ -163,21 +176,6 @@ class ClipEncoder(TextEncoder):
         self.max_length = config.context_length
         self.tokenizer = build_clip_tokenizer(context_length=self.max_length)
 
-    def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        encodings = self.tokenizer.encode_batch(list(texts))
-        input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
-        attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
-        return input_ids, attention_mask
-
-    def export_module(self) -> nn.Module:
-        return self.module
-
-    def save_tokenizer(self, path: str | Path) -> Path:
-        """tokenizer.json: OpenAI's cleaning and BPE, truncation to 77 with the end token last, batch padding."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.tokenizer.save(str(path))
-        return path
 
 
 def get_text_encoder(name: str, **kwargs) -> TextEncoder:
