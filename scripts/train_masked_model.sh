@@ -13,7 +13,7 @@ TEXT="$RUNS/text_minilm.npz"          # the GPT's caption cache: shared, compute
 #    joints halved twice -> 6 token columns per 4 frames; 4 residual quantiser layers of 256 codes (dim 128), EMA +
 #    dead-code reset, quantiser dropout 0.2. Windows, action balance and bone term as the default 1D VQ's.
 #    Measured 1.63 steps/s (104 windows/s) -> ~37 min for 3600 steps.
-t2m train joint-vq --data "$DATA" --out "$RUNS/joint_vq" --steps 3600 --batch-size 64 --window 32 --width 128 \
+t2m train joint-vq --data "$DATA" --out "$RUNS/joint_vq" --steps 2800 --batch-size 64 --window 32 --width 128 \
   --code-dim 128 --nb-code 256 --down-j 2 --residual-layers 4 --quantizer-dropout 0.2 --lr 2e-4 \
   --warmup-steps 300 --lr-milestones 0.8 --balance-power 0.5 --bone-weight 0.5 --log-every 50 --val-every 500 \
   --save-every 500 --threads 2 --seed 0
@@ -22,14 +22,14 @@ t2m train joint-vq --data "$DATA" --out "$RUNS/joint_vq" --steps 3600 --batch-si
 #    each (width 256, 4 heads, ff 512), MiniLM condition, temporal-spatial cosine masking with BERT replacement,
 #    condition dropout 0.1, condition noise 0.8 and action balance 0.3 as the default GPT's.
 #    Encoding every clip with the VQ once: ~3 min. Measured 1.15 steps/s (37 motions/s) -> ~44 min for 3000 steps.
-t2m train masked --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/masked" --steps 3000 --batch-size 32 \
+t2m train masked --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/masked" --steps 2400 --batch-size 32 \
   --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 200 \
   --lr-milestones 0.8 --cond-drop 0.1 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
   --log-every 25 --val-every 250 --save-every 250 --threads 2 --seed 0
 
 # 3. Residual transformer for layers 1..3, one pass each: the same shape, shared embedding/classifier tables,
 #    condition dropout 0.2; reuses the masked run's codes. Measured 1.06 steps/s -> ~22 min for 1400 steps.
-t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" --steps 1400 --batch-size 32 \
+t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" --steps 1100 --batch-size 32 \
   --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 100 \
   --lr-milestones 0.8 --cond-drop 0.2 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
   --codes-cache "$RUNS/masked" --log-every 25 --val-every 250 --save-every 250 --threads 2 --seed 0
@@ -37,6 +37,10 @@ t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" -
 # 4. Length estimator (free length): MiniLM feature -> 0..50 token rows. Measured ~230 steps/s -> ~15 s.
 t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 256 --hidden 256 --max-tokens 50 \
   --text-cache "$TEXT" --log-every 100 --val-every 500 --save-every 500 --threads 2 --seed 0
+
+# The evaluator of the default GPT's table (scripts/train_default_model.sh; deterministic, 0.6 min), if missing.
+[ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
+  --text-cache "$TEXT" --steps 600 --threads 2
 
 # 5. Evaluation (issue 14 item 3): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
 #    GPT's table (scripts/train_default_model.sh; its evaluator run is needed here), so the two tables compare.

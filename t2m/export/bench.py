@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import platform
 import statistics
 import tempfile
 import time
@@ -29,6 +28,7 @@ import numpy as np
 import torch
 
 from t2m.bundles import DEFAULT_BUNDLE
+from t2m.export.machine import describe_machine
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
@@ -191,22 +191,7 @@ def bench_case(case: BenchCase, threads: int, graph_dir: Path) -> tuple[list[Ben
 
 
 def machine_lines(threads: int) -> list[str]:
-    import onnxruntime
-
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return [
-        f"- CPU: {cpu}; {os.cpu_count()} logical cores; load average {load:.1f} when the run started",
-        f"- onnxruntime {onnxruntime.__version__} (intra-op threads {threads}); torch {torch.__version__}"
-        f" (threads {torch.get_num_threads()}); Python {platform.python_version()}",
-    ]
+    return describe_machine(threads, f"torch {torch.__version__} (threads {torch.get_num_threads()})")
 
 
 def run_bench(quick: bool = False, threads: int | None = None, include_release: bool = True,

@@ -2,6 +2,8 @@
 
 Prints a markdown table (default model size and the T2M-GPT release size) with the machine's CPU, cores,
 library versions and thread counts; the last line is `speedup_vs_eager_recompute=<N>x` for the default size.
+With `--bundle DIR` (repeatable) it times whole requests on those bundles instead, every model family side by side
+(a 10 s motion and a 3-sentence stream, per stage), through the service's own engine.
 """
 from __future__ import annotations
 
@@ -21,6 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="where exported benchmark graphs are kept between runs (default ~/.cache/t2m/bench)")
     parser.add_argument("--no-cache", action="store_true", help="export the graphs afresh into a temporary directory")
     parser.add_argument("--no-release", action="store_true", help="skip the 228M-parameter T2M-GPT release size")
+    parser.add_argument("--bundle", type=Path, action="append", default=None, metavar="DIR",
+                        help="time whole requests on this bundle (repeat to compare models in one run; "
+                             "'default' = the embedded default model)")
+    parser.add_argument("--repeats", type=int, default=5, help="--bundle: requests timed per case (default 5)")
     parser.set_defaults(func=run)
 
 
@@ -29,8 +35,29 @@ def run(args: argparse.Namespace) -> int:
 
     if args.threads is not None and args.threads < 1:
         raise CliError("--threads must be >= 1")
+    if args.bundle:
+        return run_bundles(args)
     from t2m.export.bench import default_cache_dir, run_bench
 
     cache_dir = None if args.no_cache else (args.cache_dir or default_cache_dir())
     run_bench(quick=args.quick, threads=args.threads, include_release=not args.no_release, cache_dir=cache_dir)
+    return 0
+
+
+def run_bundles(args: argparse.Namespace) -> int:
+    from t2m.bundle import BundleError
+    from t2m.bundles import DEFAULT_BUNDLE
+    from t2m.cli.main import CliError
+    from t2m.export.bundle_bench import run_bundle_bench
+
+    if args.repeats < 1:
+        raise CliError("--repeats must be >= 1")
+    paths = [DEFAULT_BUNDLE if str(path) == "default" else path for path in args.bundle]
+    for path in paths:
+        if not (path / "manifest.json").is_file():
+            raise CliError(f"--bundle {path}: no manifest.json there (not a bundle directory)")
+    try:
+        run_bundle_bench(paths, repeats=args.repeats, threads=args.threads)
+    except BundleError as error:
+        raise CliError(f"--bundle: {error}") from error
     return 0

@@ -1,0 +1,41 @@
+"""`t2m bench --bundle`: both families timed in one run through the service's engine (figures printed, never
+asserted), and a bad --bundle is one line."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from t2m.cli.main import main as t2m
+from t2m.export.bundle_bench import CASES, run_bundle_bench
+from t2m.export.random_bundle import build_random_bundle, build_random_masked_bundle
+
+
+@pytest.fixture(scope="module")
+def two_families(tmp_path_factory) -> list[Path]:
+    root = tmp_path_factory.mktemp("bench")
+    return [build_random_bundle(root / "gpt"), build_random_masked_bundle(root / "masked")]
+
+
+def test_both_families_and_both_requests_in_one_table(two_families):
+    lines: list[str] = []
+    results = run_bundle_bench(two_families, repeats=1, threads=1, echo=lines.append)
+    assert len(results) == 2
+    rows = [line for line in lines if line.startswith("| ") and "---" not in line][1:]
+    assert len(rows) == 2 * len(CASES)
+    assert any("gpt:" in row for row in rows) and any("masked:" in row for row in rows)
+    for times in (t for model in results.values() for t in model.values()):
+        assert min(times.text, times.codes, times.decode) > 0
+        assert times.total == pytest.approx(times.text + times.codes + times.decode)
+    assert any(line.startswith("- CPU:") for line in lines) and not any("torch" in line for line in lines)
+
+
+def test_the_stream_case_really_has_three_sentences_of_ten_seconds():
+    stream = CASES["10 s, 3-sentence stream"]
+    assert len(stream) == 3 and sum(duration for _, duration in stream) == 10.0
+
+
+def test_a_directory_without_a_bundle_is_one_line(tmp_path, capsys):
+    assert t2m(["bench", "--bundle", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "manifest.json" in err and str(tmp_path) in err
