@@ -124,14 +124,16 @@ class ExportChecks:
                     f"{r['int8_ms_per_step']:.2f} ms/step;"
                     f" {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
             if "text_encoder" in self.int8:
-                r = self.int8["text_encoder"]
-                lines.append(
-                    f"- text encoder: cosine to float32 features min {r['min_cosine']:.4f},"
-                    f" mean {r['mean_cosine']:.4f};"
-                    f" {r['fp32_ms_per_batch']:.1f} -> {r['int8_ms_per_batch']:.1f} ms per batch of 8;"
-                    f" {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
+                lines.append(text_int8_line(self.int8["text_encoder"]))
             lines.append("")
         return "\n".join(lines)
+
+
+def text_int8_line(r: Mapping[str, Any]) -> str:
+    """The model card's line for an int8 text encoder (quantize.TextInt8Report as a dict); every family's card."""
+    return (f"- text encoder: cosine to float32 features min {r['min_cosine']:.4f}, mean {r['mean_cosine']:.4f};"
+            f" {r['fp32_ms_per_batch']:.1f} -> {r['int8_ms_per_batch']:.1f} ms per batch of 8;"
+            f" {r['fp32_bytes'] / 1e6:.1f} -> {r['int8_bytes'] / 1e6:.1f} MB")
 
 
 def _check_parity(parity: dict[str, Any]) -> None:
@@ -191,13 +193,28 @@ def export_bundle(
     return manifest, checks
 
 
+def quantize_in_place(graph: Path, report: Callable[[Path, Path], dict[str, Any]]) -> dict[str, Any]:
+    """Replace ``graph`` by its int8 dynamic quantisation; ``report(fp32, int8)`` measures the price while the
+    float32 copy still exists (it is removed afterwards)."""
+    from t2m.export.quantize import quantize_graph
+
+    log.info("quantising %s to int8", graph.name)
+    fp32_copy = graph.with_name(f".{graph.name}.fp32")
+    graph.replace(fp32_copy)
+    try:
+        quantize_graph(fp32_copy, graph)
+        return report(fp32_copy, graph)
+    finally:
+        fp32_copy.unlink(missing_ok=True)
+
+
 def _export_into(
     out_dir: Path, *, vq: MotionVQVAE, gpt: MotionGPT, mean: np.ndarray, std: np.ndarray, text_source: TextSource,
     name: str, version: str, unconditional_branch: bool, default_guidance: float, training_data: Mapping[str, str],
     license: str, int8: str, notes: str, check_parity: bool, parity_steps: int,
 ) -> tuple[dict, ExportChecks]:
     from t2m.export.parity import bundle_parity
-    from t2m.export.quantize import gpt_int8_report, quantize_graph, text_int8_report
+    from t2m.export.quantize import gpt_int8_report, text_int8_report
 
     log.info("exporting the text encoder")
     text_entry = text_source.write(out_dir)
@@ -233,21 +250,15 @@ def _export_into(
         checks.parity = bundle_parity(out_dir, vq, gpt, text_source.encoder,
                                       guidance=3.0 if unconditional_branch else 1.0, steps=parity_steps)
         _check_parity(checks.parity)
-    for key, file in (("text_encoder", "text_encoder.onnx"), ("gpt_step", "gpt_step.onnx")):
-        if int8 not in ("all", "text" if key == "text_encoder" else "gpt"):
-            continue
-        log.info("quantising %s to int8", file)
-        fp32_copy = out_dir / f".{file}.fp32"
-        (out_dir / file).replace(fp32_copy)
-        try:
-            quantize_graph(fp32_copy, out_dir / file)
-            if key == "gpt_step":
-                checks.int8[key] = asdict(gpt_int8_report(fp32_copy, out_dir / file, manifest))
-            else:
-                checks.int8[key] = asdict(text_int8_report(fp32_copy, out_dir / file, out_dir / "tokenizer.json"))
-        finally:
-            fp32_copy.unlink(missing_ok=True)
-        manifest["quantization"][key] = INT8_LABEL
+    if int8 in ("all", "text"):
+        checks.int8["text_encoder"] = quantize_in_place(
+            out_dir / "text_encoder.onnx",
+            lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
+        manifest["quantization"]["text_encoder"] = INT8_LABEL
+    if int8 in ("all", "gpt"):
+        checks.int8["gpt_step"] = quantize_in_place(
+            out_dir / "gpt_step.onnx", lambda fp32, q: asdict(gpt_int8_report(fp32, q, manifest)))
+        manifest["quantization"]["gpt_step"] = INT8_LABEL
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_model_card(manifest, card_notes), encoding="utf-8")
     files = {file: out_dir / file for file in

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from t2m.export.bundle import check_out_dir, motion_fields, prepare_out_dir, write_bundle
-from t2m.export.exporter import GROSS_PARITY_ERROR, TextSource
+from t2m.export.exporter import GROSS_PARITY_ERROR, INT8_LABEL, TextSource, quantize_in_place, text_int8_line
 from t2m.export.onnx_masked import (
     decode_parity,
     export_joint_decoder,
@@ -55,10 +55,13 @@ class MaskedExportChecks:
     """What export measured against PyTorch (float32)."""
 
     parity: dict[str, Any] = field(default_factory=dict)
+    int8: dict[str, Any] = field(default_factory=dict)
 
     def model_card_section(self) -> str:
+        int8 = ["## int8 dynamic quantisation (vs the float32 graphs)", "", text_int8_line(self.int8["text_encoder"]),
+                "- masked, residual, length and decoder graphs: float32", ""] if self.int8 else []
         if not self.parity:
-            return ""
+            return "\n".join(int8)
         p = self.parity
         lines = ["## Export checks (onnxruntime vs PyTorch, float32)", "",
                  f"- masked transformer: max |logit diff| {p['masked']['max_abs_diff']:.2e}"]
@@ -72,7 +75,7 @@ class MaskedExportChecks:
         d = p["decode"]
         lines += [f"- full greedy decode (maps {d['shape']}): tokens identical {d['tokens_identical']}"
                   f" ({d['differing_tokens']} differ)", ""]
-        return "\n".join(lines)
+        return "\n".join(lines + int8)
 
 
 def check_masked_models(vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
@@ -161,9 +164,12 @@ def export_masked_bundle(
     residual: ResidualTransformer | None, length: LengthEstimator | None, mean: np.ndarray, std: np.ndarray,
     text_source: TextSource, name: str, version: str, training_data: Mapping[str, str], license: str,
     decoding: MaskedDecoding = MaskedDecoding(), unconditional_branch: bool = True, notes: str = "",
-    check_parity: bool = True,
+    check_parity: bool = True, int8_text: bool = False,
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
-    """Export, check against PyTorch, write and verify a masked bundle; returns (manifest, checks)."""
+    """Export, check against PyTorch, write and verify a masked bundle; returns (manifest, checks).
+
+    ``int8_text`` quantises the text encoder after the float32 parity checks (as the GPT family's ``--int8 text``);
+    the token graphs stay float32."""
     check_masked_models(vq, masked, residual, length)
     for key, value in (("top_k", decoding.top_k), ("residual_top_k", decoding.residual_top_k)):
         if value is not None and not 1 <= value <= masked.config.codebook_size:
@@ -206,6 +212,13 @@ def export_masked_bundle(
     if check_parity:
         log.info("checking onnxruntime against PyTorch (float32)")
         checks.parity = _parity(out_dir, vq, masked, residual, length, text_source, mean, std, decoding)
+    if int8_text:
+        from t2m.export.quantize import text_int8_report
+
+        checks.int8["text_encoder"] = quantize_in_place(
+            out_dir / "text_encoder.onnx",
+            lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
+        manifest["quantization"]["text_encoder"] = INT8_LABEL
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_masked_model_card(manifest, card_notes), encoding="utf-8")
     names += ["decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md"]
@@ -237,6 +250,7 @@ def export_masked_from_runs(
     length_run: str | Path | None = None, name: str | None = None, version: str = "0.1.0",
     model_card: str | Path | None = None, data_summary: str | Path | None = None,
     decoding: MaskedDecoding = MaskedDecoding(), check_parity: bool = True, text_source: TextSource | None = None,
+    int8_text: bool = False,
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """A verified masked bundle from a joint_vq (or 1D vq) run, a masked run, a residual run (when the VQ has more
     than one layer) and an optional length run. ``text_source`` replaces building the run's text encoder (tests)."""
@@ -280,4 +294,4 @@ def export_masked_from_runs(
         out_dir, vq=vq, masked=masked, residual=residual, length=length, mean=mean, std=std, text_source=text_source,
         name=name or f"t2m-{training_data['name']}-masked-{kind}", version=version, training_data=training_data,
         license=training_data["license"], decoding=decoding, unconditional_branch=cond_drop > 0, notes=notes,
-        check_parity=check_parity)
+        check_parity=check_parity, int8_text=int8_text)

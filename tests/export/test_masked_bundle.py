@@ -210,13 +210,28 @@ def test_t2m_export_family_masked_from_runs(masked_runs, tmp_path, tiny_text, ca
     assert "verified" in capsys.readouterr().out
 
 
+def test_int8_text_encoder_for_the_masked_family(masked_runs, tmp_path, tiny_text, capsys):
+    from t2m.cli.main import main
+
+    out = tmp_path / "bundle"
+    code = main(["export", "--family", "masked", "--vq", str(masked_runs["joint_vq"]), "--masked",
+                 str(masked_runs["masked"]), "--residual", str(masked_runs["residual"]), "--int8", "text",
+                 "-o", str(out)])
+    assert code == 0
+    manifest = verify_bundle(out)
+    assert manifest["quantization"]["text_encoder"] == "int8-dynamic"
+    card = (out / "MODEL_CARD.md").read_text()
+    assert "- text encoder: cosine to float32 features min" in card and "tokens identical True" in card
+    assert '"int8"' in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("args, message", [
     (["--family", "masked"], "--family masked needs --masked RUN"),
     (["--masked", "{masked}"], "--masked: only with --family masked"),
     ([], "--gpt RUN is required"),
     (["--family", "masked", "--masked", "{masked}", "--gpt", "{masked}"], "--gpt: only with --family gpt"),
     (["--family", "masked", "--masked", "{masked}", "--steps", "0"], "--steps must be >= 1"),
-    (["--family", "masked", "--masked", "{masked}", "--int8", "text"], "--int8 is not available"),
+    (["--family", "masked", "--masked", "{masked}", "--int8", "gpt"], "--int8 gpt: only 'none' or 'text'"),
 ])
 def test_wrong_export_arguments_are_one_line(masked_runs, tmp_path, capsys, args, message):
     from t2m.cli.main import main

@@ -33,7 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="text encoder (default: the one the GPT run was trained with)")
     parser.add_argument("--clip-weights", type=Path, default=None, metavar="PATH", help="local CLIP ViT-B/32 weights")
     parser.add_argument("--int8", choices=("none", "text", "gpt", "all"), default="none",
-                        help="int8 dynamic quantisation of the text encoder and/or GPT step graph (default none)")
+                        help="int8 dynamic quantisation of the text encoder and/or GPT step graph (default none; "
+                             "family masked: none or text)")
     parser.add_argument("--name", default=None, help="bundle name (default t2m-<data>-<text encoder>)")
     parser.add_argument("--version", default="0.1.0", help="bundle version (default 0.1.0)")
     parser.add_argument("--model-card", type=Path, default=None, metavar="FILE",
@@ -65,8 +66,9 @@ def _check_family_arguments(args: argparse.Namespace) -> None:
         raise CliError("--family masked needs --masked RUN")
     if args.gpt is not None:
         raise CliError("--gpt: only with --family gpt")
-    if args.int8 != "none":
-        raise CliError("--int8 is not available for --family masked")
+    if args.int8 not in ("none", "text"):
+        raise CliError(f"--int8 {args.int8}: only 'none' or 'text' for --family masked (its token graphs stay "
+                       "float32)")
     if args.steps < 1:
         raise CliError(f"--steps must be >= 1, got {args.steps}")
     for flag, value in (("--guidance", args.guidance), ("--residual-guidance", args.residual_guidance)):
@@ -82,8 +84,8 @@ def _run_masked(args: argparse.Namespace) -> int:
     manifest, checks = export_masked_from_runs(
         args.vq, args.masked, args.output, residual_run=args.residual, length_run=args.length, name=args.name,
         version=args.version, model_card=args.model_card, data_summary=args.data_summary, decoding=decoding,
-        check_parity=not args.skip_parity)
-    print(json.dumps({"parity": checks.parity}, indent=2))
+        check_parity=not args.skip_parity, int8_text=args.int8 == "text")
+    print(json.dumps({"parity": checks.parity, "int8": checks.int8}, indent=2))
     total = sum(entry["bytes"] for entry in manifest["files"].values())
     print(f"bundle {manifest['name']} {manifest['version']} written to {args.output} ({total / 1e6:.1f} MB, verified)")
     return 0
