@@ -9,10 +9,11 @@ from the layers below it in one pass; a drawn pad id means "layer unused" (-1).
 
 Guidance runs each segment's condition row and a null row (zero condition) in the same batch; logits = uncond + s
 (cond - uncond), with its own scale, top-k and (optionally) temperature per stage: MoMask's residual stage samples at
-temperature 1 whatever the mask stage's is, which `residual_temperature` reproduces. Each request draws from its own Generator, per step one uniform per
-token of its segments in segment order, so its tokens do not depend on what else shares the batch (padded rows of
-shorter segments are never drawn). `MaskedStep`/`ResidualStep` are what the loop needs from the networks: the
-service wraps the ONNX graphs, the PyTorch reference wraps the modules (t2m.model.masked_sampling).
+temperature 1 whatever the mask stage's is, which `residual_temperature` reproduces. Each request draws from its
+own Generator, per step one uniform per token of its segments in segment order, so its tokens do not depend on what
+else shares the batch (padded rows of shorter segments are never drawn). `MaskedStep`/`ResidualStep` are what the
+loop needs from the networks: the service wraps the ONNX graphs, the PyTorch reference wraps the modules
+(t2m.model.masked_sampling).
 """
 from __future__ import annotations
 

@@ -102,6 +102,11 @@ def check_masked_models(vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
             raise ValueError(f"max_tokens differ: masked {c.max_tokens}, length estimator {length.config.max_tokens}")
 
 
+def _residual_temperature(masked: Mapping[str, Any]) -> str:
+    value = masked.get("residual_temperature")
+    return "" if value is None else f", temperature {value:g}"
+
+
 def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
     """MODEL_CARD.md from the manifest's facts (+ the export checks and free-form notes)."""
     m, text, data = manifest["masked"], manifest["text_encoder"], manifest["training_data"]
@@ -116,9 +121,7 @@ def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> st
         f"| tokens | codebook {manifest['codebook_size']}, {m['columns']} columns, residual layers "
         f"{manifest['residual_layers']}, at most {manifest['max_tokens']} rows ({max_seconds:.1f} s) |",
         f"| decoding | {m['steps']} re-masking steps, guidance {m['guidance']} (residual {m['residual_guidance']}),"
-        f" top-k {m['top_k']} (residual {m['residual_top_k']}"
-        f"{'' if m.get('residual_temperature') is None else ', temperature ' + format(m['residual_temperature'], 'g')});"
-        " length estimator "
+        f" top-k {m['top_k']} (residual {m['residual_top_k']}{_residual_temperature(m)}); length estimator "
         f"{'yes' if m['length_estimator'] else 'no'} |",
         f"| text encoder | {text['kind']} ({text['dim']}-d, {text['pooling']} pooling,"
         f" {'L2-normalised' if text['normalize'] else 'not normalised'}, max {text['max_length']} tokens) |",
