@@ -129,12 +129,13 @@ def masked_state(s: MomaskSizes, seed: int = 1, std: float = 0.05, pe_noise: flo
 
 
 def residual_state(s: MomaskSizes, seed: int = 2, std: float = 0.05, pe_noise: float = 0.0) -> dict[str, torch.Tensor]:
-    """'res_transformer' with share_weight (112 tensors at the release's 8 layers)."""
+    """'res_transformer' with share_weight (112 tensors at the release's 8 layers). Its tables are both embeddings
+    and classifiers: at 3 / sqrt(code_dim) the logits are a few units, at any width."""
     rand, state = _Random(seed, std), {}
-    vocab = s.nb_code + 1
-    state["embed_proj_shared_weight"] = rand(s.quantizers - 2, vocab, s.code_dim, scale=1.0)
-    state["token_embed_weight_"] = rand(1, vocab, s.code_dim, scale=1.0)
-    state["output_proj_weight_"] = rand(1, vocab, s.code_dim, scale=1.0)
+    vocab, table = s.nb_code + 1, 3 / math.sqrt(s.code_dim)
+    state["embed_proj_shared_weight"] = rand(s.quantizers - 2, vocab, s.code_dim, scale=table)
+    state["token_embed_weight_"] = rand(1, vocab, s.code_dim, scale=table)
+    state["output_proj_weight_"] = rand(1, vocab, s.code_dim, scale=table)
     _shared(state, s, rand, pe_noise, head_out=s.code_dim)
     state["quant_emb.weight"], state["quant_emb.bias"] = rand(s.latent, s.quantizers), rand(s.latent)
     return state
