@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING
 
 from torch import nn
 
+from t2m.export.momask_files import kit_fps_note
+
 if TYPE_CHECKING:  # the importer imports this module
     from t2m.export.masked_exporter import MaskedDecoding
     from t2m.export.momask_import import ImportedMomask
@@ -67,7 +69,7 @@ def release_notes(models: ImportedMomask, decoding: MaskedDecoding, heads: int) 
         " from each checkpoint's `position_enc.pe` (its first rows), not regenerated",
         "- de-normalisation with the VQ's meta mean/std (std divided by 5 on the root and foot-contact dims, as"
         " MoMask de-normalises its output)",
-        length_line, "",
+        length_line, *([f"- {kit}"] if (kit := kit_fps_note(f.dataset)) else []), "",
         "## Decoding: the release's settings", "",
         f"{decoding.steps} re-masking steps, guidance {decoding.guidance:g} on the mask stage (a request's default) and"
         f" {decoding.residual_guidance:g} on the residual stage, top-k {decoding.top_k} of {v.nb_code} and"

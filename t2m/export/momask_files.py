@@ -113,6 +113,14 @@ def locate_release(checkpoints_dir: str | Path | None, overrides: Mapping[str, s
                        length_looked_for=None if "length" in given else looked_for)
 
 
+def kit_fps_note(dataset: str) -> str | None:
+    """KIT-ML's motion is 12.5 fps; a bundle's fps is an integer and the service's is 20 (None for HumanML3D)."""
+    if dataset != "KIT-ML":
+        return None
+    return ("KIT-ML motion is 12.5 fps but the bundle records 20 fps (manifest format 1): durations map to 20 / 12.5 "
+            "times more token rows than in MoMask, and the served motion plays 1.6 times too fast")
+
+
 def read_state(path: Path, role: str, allow_pickle: bool = False) -> tuple[str, dict[str, torch.Tensor]]:
     """(the top-level key found, its state dict in float32 without ``clip_model.*``) of one release file."""
     key, state = load_checkpoint_entry(path, STATE_KEYS[role], allow_pickle)

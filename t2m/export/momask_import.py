@@ -31,7 +31,7 @@ from torch import nn
 from t2m.export.exporter import clip_text_source
 from t2m.export.masked_exporter import MaskedDecoding, MaskedExportChecks, export_masked_bundle
 from t2m.export.momask_card import release_notes
-from t2m.export.momask_files import MomaskFiles, locate_release, read_stat, read_state
+from t2m.export.momask_files import MomaskFiles, kit_fps_note, locate_release, read_stat, read_state
 from t2m.export.t2m_gpt_import import infer_vq_config
 from t2m.model.networks.length_estimator import LengthEstimator, LengthEstimatorConfig
 from t2m.model.networks.masked_transformer import MaskedTransformer
@@ -235,9 +235,9 @@ def import_momask(
     located = locate_release(checkpoints_dir, files or {})
     text_source = clip_text_source(clip_weights)  # a wrong CLIP file is refused before the slow checkpoint loads
     models = load_momask(located, heads, allow_pickle)
-    missing_length = located.missing_length_note()
-    if missing_length:
-        log.warning("%s", missing_length)
+    for note in (located.missing_length_note(), kit_fps_note(located.dataset)):
+        if note:
+            log.warning("%s", note)
     decoding = release_decoding(located.dataset, models.vq.config.nb_code)
     notes, training_data, license = release_notes(models, decoding, heads)
     default_name = "momask-" + ("kit" if located.dataset == "KIT-ML" else "humanml3d")

@@ -28,7 +28,7 @@ from momask_release_files import RELEASE, SMALL, MomaskSizes, ReleaseStates, rel
 from t2m.cli.main import main as t2m
 from t2m.decoding.masked import remask_counts
 from t2m.export.graph_export import ort_session
-from t2m.export.momask_files import locate_release
+from t2m.export.momask_files import kit_fps_note, locate_release
 from t2m.export.momask_import import import_momask, load_momask, release_decoding, release_top_k
 from t2m.model.masked_sampling import generate_token_maps
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
@@ -352,6 +352,7 @@ def test_kit_folder_names_are_found(tmp_path):
     assert files.dataset == "KIT-ML" and files.vq.parent.parent.name == "rvq_nq6_dc512_nc512_noshare_qdp0.2_k"
     assert files.length == tmp_path / "length_estimator" / "model" / "finest.tar"
     assert load_momask(files).vq.config.feat_dim == 251
+    assert "plays 1.6 times too fast" in str(kit_fps_note(files.dataset)) and kit_fps_note("HumanML3D") is None
 
 
 def _break(release: Release, target: Path, role: str, edit) -> Path:
