@@ -5,15 +5,10 @@ Kept apart from the importer so the statement of exactness is one readable text 
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from torch import nn
 
-from t2m.export.momask_files import kit_fps_note
-
-if TYPE_CHECKING:  # the importer imports this module
-    from t2m.export.masked_exporter import MaskedDecoding
-    from t2m.export.momask_import import ImportedMomask
+from t2m.export.masked_exporter import MaskedDecoding
+from t2m.export.momask_files import ImportedMomask, kit_fps_note
 
 RELEASE_LICENSE = ("MoMask's release terms: its code is MIT-licensed (Chuan Guo, 2023) and the weights come with it "
                    "without separate terms; its README adds that the datasets have their own licences, which must "

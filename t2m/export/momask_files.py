@@ -1,4 +1,5 @@
-"""Where MoMask's released files are, and reading them (../shared/docs/masked-models.md §1.5).
+"""Where MoMask's released files are, reading them, and what an import read from them (../shared/docs/masked-models.md
+§1.5).
 
 The release unpacks to ``checkpoints/t2m/`` (HumanML3D; KIT-ML: ``checkpoints/kit/`` with the folder names suffixed
 ``_k``):
@@ -25,6 +26,10 @@ import numpy as np
 import torch
 
 from t2m.export.t2m_gpt_import import load_checkpoint_entry
+from t2m.model.networks.length_estimator import LengthEstimator
+from t2m.model.networks.masked_transformer import MaskedTransformer
+from t2m.model.networks.residual_transformer import ResidualTransformer
+from t2m.model.networks.vqvae import MotionVQVAE
 
 VQ_DIR = "rvq_nq6_dc512_nc512_noshare_qdp0.2"
 MASKED_DIR = "t2m_nlayer8_nhead6_ld384_ff1024_cdp0.1_rvq6ns"
@@ -119,6 +124,20 @@ def kit_fps_note(dataset: str) -> str | None:
         return None
     return ("KIT-ML motion is 12.5 fps but the bundle records 20 fps (manifest format 1): durations map to 20 / 12.5 "
             "times more token rows than in MoMask, and the served motion plays 1.6 times too fast")
+
+
+@dataclass
+class ImportedMomask:
+    """The release as our modules (eval mode), the de-normalisation and what was read from where."""
+
+    files: MomaskFiles
+    vq: MotionVQVAE
+    masked: MaskedTransformer
+    residual: ResidualTransformer
+    length: LengthEstimator | None
+    mean: np.ndarray
+    std: np.ndarray
+    keys: dict[str, str]
 
 
 def read_state(path: Path, role: str, allow_pickle: bool = False) -> tuple[str, dict[str, torch.Tensor]]:

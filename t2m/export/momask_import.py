@@ -20,18 +20,23 @@ import logging
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
 from t2m.export.exporter import clip_text_source
 from t2m.export.masked_exporter import MaskedDecoding, MaskedExportChecks, export_masked_bundle
 from t2m.export.momask_card import release_notes
-from t2m.export.momask_files import MomaskFiles, kit_fps_note, locate_release, read_stat, read_state
+from t2m.export.momask_files import (
+    ImportedMomask,
+    MomaskFiles,
+    kit_fps_note,
+    locate_release,
+    read_stat,
+    read_state,
+)
 from t2m.export.t2m_gpt_import import infer_vq_config
 from t2m.model.networks.length_estimator import LengthEstimator, LengthEstimatorConfig
 from t2m.model.networks.masked_transformer import MaskedTransformer
@@ -185,20 +190,6 @@ def _length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEstima
     config = LengthEstimatorConfig(text_dim=text_dim, hidden=hidden, max_tokens=RELEASE_MAX_TOKENS,
                                    dropout=RELEASE_DROPOUT)
     return _load(LengthEstimator(config), state, where), key
-
-
-@dataclass
-class ImportedMomask:
-    """The release as our modules (eval mode), the de-normalisation and what was read from where."""
-
-    files: MomaskFiles
-    vq: MotionVQVAE
-    masked: MaskedTransformer
-    residual: ResidualTransformer
-    length: LengthEstimator | None
-    mean: np.ndarray
-    std: np.ndarray
-    keys: dict[str, str]
 
 
 def load_momask(files: MomaskFiles, heads: int = RELEASE_HEADS, allow_pickle: bool = False) -> ImportedMomask:
