@@ -140,6 +140,7 @@ FAMILY_FIELDS: dict[str, dict[str, tuple[Check, str]]] = {"gpt": MANIFEST_FIELDS
 # optional fields: path -> (check, what it must be)
 OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
     "family": (lambda v: v in FAMILIES, f"one of {list(FAMILIES)}"),
+    "masked.residual_temperature": (lambda v: _is_number(v) and v > 0, "null or a number > 0"),
     "caption_index": (lambda v: v is None or isinstance(v, dict), "null or an object"),
     "caption_index.file": (lambda v: v == CAPTION_INDEX_FILE, f"'{CAPTION_INDEX_FILE}'"),
     "caption_index.count": POSITIVE,
@@ -268,6 +269,7 @@ class MaskedSettings:
     pad_id: int
     unconditional_branch: bool
     length_estimator: bool
+    residual_temperature: float | None = None  # null: the request's temperature (MoMask's imports: 1.0)
 
 
 @dataclass(frozen=True)
@@ -347,7 +349,9 @@ def _masked_settings(raw: dict[str, Any]) -> MaskedSettings:
     return MaskedSettings(columns=m["columns"], steps=m["steps"], guidance=float(m["guidance"]),
                           residual_guidance=float(m["residual_guidance"]), top_k=m["top_k"],
                           residual_top_k=m["residual_top_k"], mask_id=m["mask_id"], pad_id=m["pad_id"],
-                          unconditional_branch=m["unconditional_branch"], length_estimator=m["length_estimator"])
+                          unconditional_branch=m["unconditional_branch"], length_estimator=m["length_estimator"],
+                          residual_temperature=(None if m.get("residual_temperature") is None
+                                                else float(m["residual_temperature"])))
 
 
 def parse_manifest(raw: dict[str, Any]) -> Manifest:

@@ -8,10 +8,12 @@ for it, and a token not re-masked in a step is frozen from then on (MoMask's rul
 from the layers below it in one pass; a drawn pad id means "layer unused" (-1).
 
 Guidance runs each segment's condition row and a null row (zero condition) in the same batch; logits = uncond + s
-(cond - uncond), with its own scale per stage. Each request draws from its own Generator, per step one uniform per
-token of its segments in segment order, so its tokens do not depend on what else shares the batch (padded rows of
-shorter segments are never drawn). `MaskedStep`/`ResidualStep` are what the loop needs from the networks: the
-service wraps the ONNX graphs, the PyTorch reference wraps the modules (t2m.model.masked_sampling).
+(cond - uncond), with its own scale, top-k and (optionally) temperature per stage: MoMask's residual stage samples at
+temperature 1 whatever the mask stage's is, which `residual_temperature` reproduces. Each request draws from its
+own Generator, per step one uniform per token of its segments in segment order, so its tokens do not depend on what
+else shares the batch (padded rows of shorter segments are never drawn). `MaskedStep`/`ResidualStep` are what the
+loop needs from the networks: the service wraps the ONNX graphs, the PyTorch reference wraps the modules
+(t2m.model.masked_sampling).
 """
 from __future__ import annotations
 
@@ -58,6 +60,7 @@ class MaskedJob:
     temperature: float = 1.0
     top_k: int | None = None
     residual_top_k: int | None = None
+    residual_temperature: float | None = None  # None: `temperature` (MoMask's generate: always 1 in this stage)
     greedy: bool = False
     cancelled: Callable[[], bool] = field(default=lambda: False)
 
@@ -107,14 +110,19 @@ def _softmax_at(logits: np.ndarray, chosen: np.ndarray) -> np.ndarray:
 def _draws(logits: np.ndarray, jobs: Sequence[MaskedJob], segments: list[_Segment], guided: bool,
            stage: str) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per segment (guided logits over its real tokens, the codes drawn from them) with its job's settings for
-    `stage` ("mask": guidance, top_k; "residual": residual_guidance, residual_top_k), in segment order."""
+    `stage` ("mask": guidance, top_k, temperature; "residual": residual_guidance, residual_top_k and
+    residual_temperature, which defaults to temperature), in segment order."""
     count, out = len(segments), []
     logits = logits.reshape(len(logits), -1, logits.shape[-1])
     for index, segment in enumerate(segments):
         job = jobs[segment.job]
-        scale, top_k = ((job.guidance, job.top_k) if stage == "mask" else (job.residual_guidance, job.residual_top_k))
+        if stage == "mask":
+            scale, top_k, temperature = job.guidance, job.top_k, job.temperature
+        else:
+            scale, top_k = job.residual_guidance, job.residual_top_k
+            temperature = job.temperature if job.residual_temperature is None else job.residual_temperature
         chosen = _guided(logits, index, count, scale, guided)[:segment.tokens.size]   # its real tokens only
-        out.append((chosen, draw_tokens(chosen, job.temperature, top_k, job.rng, job.greedy)))
+        out.append((chosen, draw_tokens(chosen, temperature, top_k, job.rng, job.greedy)))
     return out
 
 

@@ -48,6 +48,7 @@ class MaskedDecoding:
     residual_guidance: float = 5.0
     top_k: int | None = None
     residual_top_k: int | None = None
+    residual_temperature: float | None = None  # None: the request's temperature; MoMask's imports fix it at 1
 
 
 @dataclass
@@ -104,6 +105,11 @@ def check_masked_models(vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
             raise ValueError(f"max_tokens differ: masked {c.max_tokens}, length estimator {length.config.max_tokens}")
 
 
+def _residual_temperature(masked: Mapping[str, Any]) -> str:
+    value = masked.get("residual_temperature")
+    return "" if value is None else f", temperature {value:g}"
+
+
 def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
     """MODEL_CARD.md from the manifest's facts (+ the export checks and free-form notes)."""
     m, text, data = manifest["masked"], manifest["text_encoder"], manifest["training_data"]
@@ -118,7 +124,7 @@ def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> st
         f"| tokens | codebook {manifest['codebook_size']}, {m['columns']} columns, residual layers "
         f"{manifest['residual_layers']}, at most {manifest['max_tokens']} rows ({max_seconds:.1f} s) |",
         f"| decoding | {m['steps']} re-masking steps, guidance {m['guidance']} (residual {m['residual_guidance']}),"
-        f" top-k {m['top_k']} (residual {m['residual_top_k']}); length estimator "
+        f" top-k {m['top_k']} (residual {m['residual_top_k']}{_residual_temperature(m)}); length estimator "
         f"{'yes' if m['length_estimator'] else 'no'} |",
         f"| text encoder | {text['kind']} ({text['dim']}-d, {text['pooling']} pooling,"
         f" {'L2-normalised' if text['normalize'] else 'not normalised'}, max {text['max_length']} tokens) |",
@@ -174,6 +180,8 @@ def export_masked_bundle(
     for key, value in (("top_k", decoding.top_k), ("residual_top_k", decoding.residual_top_k)):
         if value is not None and not 1 <= value <= masked.config.codebook_size:
             raise ValueError(f"{key} must be null or 1..{masked.config.codebook_size}, got {value}")
+    if decoding.residual_temperature is not None and not decoding.residual_temperature > 0:
+        raise ValueError(f"residual_temperature must be null or > 0, got {decoding.residual_temperature}")
     check_out_dir(out_dir)
     out_dir = prepare_out_dir(out_dir)
     for module in (vq, masked, residual, length):
@@ -204,7 +212,9 @@ def export_masked_bundle(
         "masked": {"columns": columns, "steps": decoding.steps, "guidance": float(decoding.guidance),
                    "residual_guidance": float(decoding.residual_guidance), "top_k": decoding.top_k,
                    "residual_top_k": decoding.residual_top_k, "mask_id": c.mask_id, "pad_id": c.codebook_size,
-                   "unconditional_branch": bool(unconditional_branch), "length_estimator": length is not None},
+                   "unconditional_branch": bool(unconditional_branch), "length_estimator": length is not None,
+                   **({} if decoding.residual_temperature is None
+                      else {"residual_temperature": float(decoding.residual_temperature)})},
         "text_encoder": text_entry, "training_data": dict(training_data), "license": license,
         "quantization": {"text_encoder": None},
     }

@@ -15,6 +15,7 @@ says ``unconditional_branch: false`` and ``default_guidance: 1.0``.
 from __future__ import annotations
 
 import logging
+import pickle
 import re
 import shutil
 from collections.abc import Mapping
@@ -49,31 +50,46 @@ CLIP_REQUIRED = (
 # --------------------------------------------------------------------------------------------- loading files
 
 def load_checkpoint_dict(path: str | Path, key: str, allow_pickle: bool = False) -> dict[str, torch.Tensor]:
-    """``torch.load`` with ``weights_only=True`` and pick ``key`` ('net' or 'trans').
+    """``torch.load`` with ``weights_only=True`` and pick ``key`` ('net' or 'trans')."""
+    return load_checkpoint_entry(path, (key,), allow_pickle)[1]
 
-    A file holding other Python objects needs the full unpickler, which can run code from the file:
-    only with ``allow_pickle`` (``--allow-pickle``), for files from a source the user trusts.
+
+def load_checkpoint_entry(path: str | Path, keys: tuple[str, ...], allow_pickle: bool = False
+                          ) -> tuple[str, dict[str, torch.Tensor]]:
+    """(the first of ``keys`` the file has, its state dict with float tensors as float32).
+
+    ``torch.load`` with ``weights_only=True``. A file holding other Python objects needs the full unpickler, which
+    can run code from the file: only with ``allow_pickle`` (``--allow-pickle``), for files from a source the user
+    trusts. A file torch cannot read at all (truncated, not a checkpoint) is named as such.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(str(path))
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:
+    except pickle.UnpicklingError as error:
         if not allow_pickle:
-            first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            raise ValueError(f"{path}: not loadable as plain tensors ({first_line}); if you trust the file, "
+            raise ValueError(f"{path}: not loadable as plain tensors ({_first_line(error)}); if you trust the file, "
                              "pass --allow-pickle") from error
         log.warning("%s: loading with the full unpickler (--allow-pickle)", path)
         data = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:
+        raise ValueError(f"{path}: not a complete PyTorch file ({_first_line(error)})") from None
+    wanted = " or ".join(f"'{k}'" for k in keys)
     if not isinstance(data, Mapping):
-        raise ValueError(f"{path}: expected a dict with key '{key}', got {type(data).__name__}")
-    if key not in data:
-        raise ValueError(f"{path}: no key '{key}' (keys: {', '.join(map(str, list(data)[:10]))})")
+        raise ValueError(f"{path}: expected a dict with key {wanted}, got {type(data).__name__}")
+    key = next((k for k in keys if k in data), None)
+    if key is None:
+        raise ValueError(f"{path}: no key {wanted} (keys: {', '.join(map(str, list(data)[:10]))})")
     state = data[key]
     if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ValueError(f"{path}: '{key}' is not a state dict of tensors")
-    return {str(k): v.float() if v.is_floating_point() else v for k, v in state.items()}
+    return key, {str(k): v.float() if v.is_floating_point() else v for k, v in state.items()}
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0][:200] if text else type(error).__name__
 
 
 def strip_prefix(state: Mapping[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:

@@ -89,6 +89,19 @@ def test_residual_layers_one_pass_each_and_pad_means_unused():
     assert (maps[0][..., 2] == -1).all()             # a drawn pad id: the layer is unused there
 
 
+def test_the_residual_stage_can_keep_its_own_temperature():
+    """residual_temperature (MoMask's imports: 1) holds the residual stage while the mask stage's temperature
+    changes; unset, the residual stage follows the job's temperature as before."""
+    def residual_codes(**settings) -> np.ndarray:
+        job = _job(np.eye(4)[:1], [40], seed=2, steps=2, guidance=1.0, residual_guidance=1.0, **settings)
+        (maps,) = sample_token_maps(ScriptedMasked(), ScriptedResidual(), [job])
+        return maps[0][..., 1]
+
+    assert (residual_codes(temperature=1e-3) == 1).all()                # near greedy: layer 1 favours code 1
+    assert (residual_codes(temperature=100.0) != 1).sum() > 20           # near uniform over the 9 classes
+    assert (residual_codes(temperature=100.0, residual_temperature=1e-3) == 1).all()
+
+
 def test_a_requests_tokens_do_not_depend_on_its_batch():
     conds = np.random.default_rng(1).normal(size=(3, 4))
     settings = {"steps": 4, "guidance": 2.0, "residual_guidance": 3.0, "top_k": 5, "temperature": 1.3}

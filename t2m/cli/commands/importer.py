@@ -1,4 +1,4 @@
-"""`t2m import t2m-gpt`: the released T2M-GPT checkpoints -> a verified model bundle.
+"""`t2m import t2m-gpt` / `t2m import momask`: released checkpoints -> a verified model bundle.
 
     t2m import t2m-gpt --vq net_last.pth --gpt net_best_fid.pth --mean mean.npy --std std.npy \
         --clip ViT-B-32.pt -o models/t2m-gpt
@@ -7,6 +7,11 @@ Sizes are read from tensor shapes; attention heads are assumed to be embed / 64 
 --heads is given. The text encoder is OpenAI's CLIP ViT-B/32 from --clip ViT-B-32.pt (the TorchScript file that
 OpenAI's clip.load downloads, or a state dict in its key layout); --text-encoder-bundle DIR reuses the 512-d text
 graph and tokenizer of an existing bundle instead (e.g. an earlier import).
+
+    t2m import momask checkpoints/t2m --clip ViT-B-32.pt -o models/momask
+
+reads MoMask's release as it unpacks (docs/masked-family.md "Importing MoMask"); --vq/--mean/--std/--masked/
+--residual/--length name single files instead.
 """
 from __future__ import annotations
 
@@ -26,19 +31,62 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="GPT checkpoint {'trans': ...}")
     t2m.add_argument("--mean", type=Path, required=True, help="mean.npy used to de-normalise (evaluator meta)")
     t2m.add_argument("--std", type=Path, required=True, help="std.npy used to de-normalise (evaluator meta)")
-    t2m.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt",
-                     help="OpenAI's CLIP ViT-B/32 weights (local file)")
     t2m.add_argument("--text-encoder-bundle", type=Path, default=None, metavar="DIR",
                      help="reuse text_encoder.onnx + tokenizer.json of this bundle instead of --clip")
     t2m.add_argument("--heads", type=int, default=None, help="attention heads (default embed / 64)")
     t2m.add_argument("--int8", choices=("none", "text", "gpt", "all"), default="none")
     t2m.add_argument("--name", default="t2m-gpt-humanml3d")
-    t2m.add_argument("--version", default="1.0.0")
-    t2m.add_argument("--allow-pickle", action="store_true",
-                     help="load checkpoints that hold more than tensors with the full unpickler (trusted files only)")
-    t2m.add_argument("--skip-parity", action="store_true", help="do not compare onnxruntime with PyTorch")
-    t2m.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="bundle directory to write")
+    add_common_options(t2m)
     t2m.set_defaults(func=run_t2m_gpt)
+    register_momask(sources)
+
+
+def add_common_options(parser: argparse.ArgumentParser) -> None:
+    """The options every importer has: the CLIP file, the bundle's version, pickles, parity, the output folder."""
+    parser.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt",
+                        help="OpenAI's CLIP ViT-B/32 weights (local file)")
+    parser.add_argument("--version", default="1.0.0")
+    parser.add_argument("--allow-pickle", action="store_true",
+                        help="load checkpoints holding more than tensors with the full unpickler (trusted files only)")
+    parser.add_argument("--skip-parity", action="store_true", help="do not compare onnxruntime with PyTorch")
+    parser.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="bundle directory to write")
+
+
+def register_momask(sources: argparse._SubParsersAction) -> None:
+    momask = sources.add_parser(
+        "momask", help="MoMask (checkpoints/t2m: RVQ-VAE, masked + residual transformers, length estimator)",
+        description=("Import MoMask's released checkpoints as a masked-family bundle with the release's decoding "
+                     "settings (10 steps, guidance 4 and 5, top-k 10%)."))
+    momask.add_argument("checkpoints", type=Path, nargs="?", default=None, metavar="CHECKPOINTS_DIR",
+                        help="MoMask's checkpoints/t2m (or checkpoints/kit) folder as the release unpacks it")
+    files = momask.add_argument_group("files (each overrides the folder lookup)")
+    for flag, default in (("vq", "rvq_*/model/net_best_fid.tar"), ("mean", "rvq_*/meta/mean.npy"),
+                          ("std", "rvq_*/meta/std.npy"), ("masked", "t2m_nlayer8_*/model/latest.tar"),
+                          ("residual", "tres_nlayer8_*/model/net_best_fid.tar"),
+                          ("length", "length_estimator/model/finest.tar")):
+        files.add_argument(f"--{flag}", type=Path, default=None, metavar="FILE", help=f"default: {default}")
+    momask.add_argument("--heads", type=int, default=6, help="attention heads (not stored in the weights; release: 6)")
+    momask.add_argument("--name", default=None, help="bundle name (default momask-humanml3d / momask-kit)")
+    add_common_options(momask)
+    momask.set_defaults(func=run_momask)
+
+
+def run_momask(args: argparse.Namespace) -> int:
+    import logging
+
+    from t2m.export.momask_import import import_momask
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    files = {role: getattr(args, role) for role in ("vq", "mean", "std", "masked", "residual", "length")}
+    manifest, checks = import_momask(args.checkpoints, args.output, clip_weights=args.clip, files=files,
+                                     heads=args.heads, name=args.name, version=args.version,
+                                     check_parity=not args.skip_parity, allow_pickle=args.allow_pickle)
+    print(json.dumps({"parity": checks.parity}, indent=2))
+    m = manifest["masked"]
+    print(f"imported MoMask ({manifest['residual_layers']} quantiser layers, {m['steps']} steps, guidance "
+          f"{m['guidance']:g} / {m['residual_guidance']:g}, top-k {m['top_k']} / {m['residual_top_k']}, length "
+          f"estimator {'yes' if m['length_estimator'] else 'no'}) into {args.output} (verified)")
+    return 0
 
 
 def run_t2m_gpt(args: argparse.Namespace) -> int:

@@ -6,7 +6,8 @@ Rows per segment come from its duration (tokens_for_duration); a null duration i
 distribution with the request's generator (one uniform per null segment, in segment order, before the token draws),
 or refused naming the segment's duration when the bundle has no length estimator. Request options: `guidance` is
 the mask stage's scale, `temperature` and `top_k` (null: the manifest's) apply to the mask stage; the residual stage
-uses the manifest's settings.
+uses the manifest's guidance and top-k, and the request's temperature unless the manifest fixes
+`residual_temperature` (MoMask's imports: 1, as MoMask's own generation does).
 """
 from __future__ import annotations
 
@@ -84,7 +85,8 @@ class MaskedCodes:
                          guidance=request.guidance, residual_guidance=s.residual_guidance,
                          temperature=request.temperature,
                          top_k=request.top_k if request.top_k is not None else s.top_k,
-                         residual_top_k=s.residual_top_k, cancelled=lambda: request.cancelled)
+                         residual_top_k=s.residual_top_k, residual_temperature=s.residual_temperature,
+                         cancelled=lambda: request.cancelled)
 
     def sample(self, jobs: Sequence[MaskedJob], max_tokens: int,
                on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
