@@ -8,11 +8,12 @@ import time
 import httpx
 import numpy as np
 import pytest
-from fakes import FakeEngine
+from fakes import FakeEngine, StreamingFakeEngine
 
 from t2m.client import (
     AsyncT2MClient,
     AuthError,
+    FrameChunk,
     Motion,
     OverloadedError,
     Segment,
@@ -139,3 +140,51 @@ def test_sdk_overload_and_timeout_errors():
         timeouts = [r for r in results if isinstance(r, ServerError)]
         assert timeouts and all(r.status_code == 504 for r in timeouts), results
         gate.set()
+
+
+def _check_streamed(items: list, whole: Motion) -> None:
+    """FrameChunks in order, then the Motion: its frames are the chunks', and the unstreamed motion's to 1e-5."""
+    *chunks, motion = items
+    assert len(chunks) > 2 and all(isinstance(chunk, FrameChunk) for chunk in chunks) and isinstance(motion, Motion)
+    assert [c.start_frame for c in chunks] == list(np.cumsum([0] + [len(c.frames) for c in chunks])[:-1])
+    assert np.array_equal(np.concatenate([chunk.frames for chunk in chunks]), motion.frames)
+    assert np.abs(motion.frames - whole.frames).max() <= 1e-5 + 1e-6
+    assert (motion.seed, motion.segments, motion.model, motion.warnings) == (whole.seed, whole.segments,
+                                                                             whole.model, whole.warnings)
+
+
+def test_sync_sdk_streams_frames(live_server):
+    walk = [("a person walks forward", 10.0)]
+    with T2MClient(live_server.url, api_key="test-key", timeout=30) as t2m:
+        _check_streamed(list(t2m.generate_stream(walk, seed=3)), t2m.generate(walk, seed=3))
+        with pytest.raises(ValidationError) as error:   # refused before any frame: raised as iteration starts
+            next(iter(t2m.generate_stream([("walk", 0.1)])))
+        assert error.value.fields == ["segments.0.duration"]
+
+
+def test_async_sdk_streams_frames(live_server):
+    walk = [("a person walks forward", 10.0), ("a person waves with the right hand", None)]
+
+    async def scenario() -> None:
+        async with AsyncT2MClient(live_server.url, api_key="test-key", timeout=30) as t2m:
+            items = [item async for item in t2m.generate_stream(walk, seed=5)]
+            _check_streamed(items, await t2m.generate(walk, seed=5))
+            with pytest.raises(ValidationError):
+                await anext(t2m.generate_stream([("walk", 0.1)]))
+
+    asyncio.run(scenario())
+
+
+def test_sdk_stream_failing_after_its_first_frames_raises_server_error():
+    from t2m.service.app import create_app
+    from t2m.service.settings import Settings
+
+    app = create_app(Settings(request_timeout_s=0.3), engine_factory=lambda s: StreamingFakeEngine(early=8,
+                                                                                                    delay_s=5.0))
+    with LiveServer(app) as server, T2MClient(server.url, timeout=10) as t2m:
+        stream = t2m.generate_stream("walk", seed=1)
+        first = next(stream)
+        with pytest.raises(ServerError) as failure:
+            next(stream)
+    assert isinstance(first, FrameChunk) and len(first.frames) == 8
+    assert failure.value.status_code == 504
