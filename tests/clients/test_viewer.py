@@ -2,7 +2,8 @@
 
 Types sentences, clicks Generate, waits for the page to report the frames (streamed: it starts playing with the
 first frames message), checks that the skeleton is drawn and animates, that orbiting changes the view, that BVH and
-glb downloads arrive, that a 422 names the field on the page, and that the console stays clean. The screenshot lands in artifacts/viewer/ (env T2M_ARTIFACTS_DIR overrides).
+glb downloads arrive, that a 422 names the field on the page, and that the console stays clean. The screenshot lands
+in artifacts/viewer/ (env T2M_ARTIFACTS_DIR overrides).
 """
 from __future__ import annotations
 

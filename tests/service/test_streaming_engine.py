@@ -120,10 +120,11 @@ def test_early_frames_and_the_rest_equal_the_unstreamed_motion(default_engine, s
     assert all(len(chunk) % 4 == 0 for chunk in chunks)
 
 
-def test_a_10s_motion_sends_all_but_the_last_ahead_codes_early(default_engine):
-    """50 codes, reach 22: codes 0..27 can be final before the end; sent at 1, 9, 17, 25 final codes (every 8)."""
+def test_a_10s_motion_sends_its_early_frames_in_doubling_chunks(default_engine):
+    """50 codes, reach 22: codes 0..27 can be final before the end. Sent: the first final code at once, then when at
+    least 8 codes and at least as many as sent before are newly final: at 1, 9 and 18 final codes (27 - 18 < 18)."""
     chunks, _, _ = _streamed(default_engine, [("a person walks forward", 10.0)], seed=5)
-    assert [len(chunk) for chunk in chunks] == [4, 32, 32, 32]
+    assert [len(chunk) for chunk in chunks] == [4, 32, 36]
 
 
 def test_the_random_bundle_streams_equal_frames_too(onnx_engine):

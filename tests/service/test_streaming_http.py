@@ -55,8 +55,8 @@ def test_the_default_model_streams_its_json_answer(make_client, default_model):
     response = client.post("/generate", json={**WALK, "stream": True})
     assert response.headers["x-seed"] == "4" and response.headers["x-accel-buffering"] == "no"
     chunks = check_stream_equals_answer(messages(response), client.post("/generate", json=WALK).json())
-    # 50 codes, the decoder sees 22 ahead: 25 codes' frames go early (at 1, 9, 17, 25), the rest come whole
-    assert chunks == [4, 32, 32, 32, 40, 40, 20]
+    # 50 codes, the decoder sees 22 ahead: 18 codes' frames go early (at 1, 9, 18), the rest come whole
+    assert chunks == [4, 32, 36, 40, 40, 40, 8]
 
 
 def test_a_masked_stream_sends_the_whole_motion_in_chunks(make_client, masked_bundle):

@@ -48,7 +48,8 @@ class OnnxEngine:
     def __init__(self, bundle: Bundle, unknown_text: str = "warn", stream_every: int = 8) -> None:
         """`unknown_text`: "warn" (a warning in the answer) or "reject" (a 422 naming the segment) for a sentence far
         from every training caption; only bundles with a caption index can tell. `stream_every`: a streamed request
-        gets its early frames whenever this many more codes' frames are final (one decode each)."""
+        gets its first final frames at once, then the next when at least this many more codes' frames (and as many
+        as sent before) are final (engine/streaming.py; one decode each)."""
         if unknown_text not in ("warn", "reject"):
             raise ValueError(f"unknown_text must be 'warn' or 'reject', got {unknown_text!r}")
         manifest = bundle.manifest

@@ -7,6 +7,11 @@ reach.behind before the first unsent code decodes them exactly as the whole deco
 rounding, which differs by ~1e-6 between lengths), and their joints follow from the frames before them alone
 (motion.features.JointRecovery). The frames of the last `ahead` codes come with the whole decode at the end; the
 service sends what is left of the Motion then.
+
+When to decode: the first final code's frames at once (time to first frame), then whenever the newly final codes
+are at least `every` and at least as many as were sent before. Chunks doubling in size cost about log2(N) decodes
+for N codes instead of N / every, and a player never waits for frames while sampling is at least twice as fast as
+real time (a chunk arrives before the frames sent before it have been played).
 """
 from __future__ import annotations
 
@@ -26,8 +31,8 @@ log = logging.getLogger(__name__)
 
 
 class FrameStreamer:
-    """One request's early frames: whenever `every` more codes' frames are final (and at once for the first ones),
-    decode a window and hand the joints of those frames to `send`, in order."""
+    """One request's early frames: decode a window when enough codes' frames are newly final (see the module's
+    docstring) and hand the joints of those frames to `send`, in order."""
 
     def __init__(self, decode: Callable[[np.ndarray], np.ndarray], skeleton: Skeleton, reach: DecoderReach,
                  frames_per_token: int, every: int, send: FrameSink) -> None:
@@ -54,7 +59,8 @@ class FrameStreamer:
             return   # every segment is finished: the whole decode follows
         known = segments[:unfinished + 1]   # the codes known for good: finished segments, then the growing one
         final = sum(len(tokens) for tokens in known) - self.reach.ahead
-        if final <= self.sent_codes or (self.sent_codes and final - self.sent_codes < self.every):
+        if final <= self.sent_codes or (self.sent_codes and final - self.sent_codes < max(self.every,
+                                                                                           self.sent_codes)):
             return
         start = max(0, self.sent_codes - self.reach.behind)
         codes = np.concatenate([np.asarray(tokens, dtype=np.int64) for tokens in known])[start:]
