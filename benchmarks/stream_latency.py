@@ -22,8 +22,15 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.http_latency import MAX_REPEATS, motion_request
-from benchmarks.server_process import require_loopback, running_server
+from benchmarks.http_latency import (
+    MAX_REPEATS,
+    add_target_arguments,
+    check_target,
+    motion_request,
+    on_target,
+    write_json,
+)
+from benchmarks.server_process import require_loopback
 
 __all__ = ["format_table", "main", "measure_stream"]
 
@@ -104,42 +111,22 @@ def format_table(result: dict, url: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    target = parser.add_mutually_exclusive_group(required=True)
-    target.add_argument("--url", help="a running service on loopback, e.g. http://127.0.0.1:8000")
-    target.add_argument("--model", help="start `t2m serve` on this bundle on a free loopback port and time that")
-    parser.add_argument("--repeats", type=int, default=20)
-    parser.add_argument("--motion-seconds", type=float, default=10.0)
-    parser.add_argument("--segments", type=int, default=1, help="split the motion into this many sentences")
+    add_target_arguments(parser, repeats=20)
     parser.add_argument("--intra-op-threads", type=int, default=None,
                         help="with --model: T2M_INTRA_OP_THREADS of the server it starts (default: the server's, 0 = "
                              "onnxruntime's choice; 1 is faster when other work shares the cores)")
-    parser.add_argument("--api-key")
-    parser.add_argument("--json-out", help="also write the figures as JSON here")
     args = parser.parse_args(argv)
     try:
-        if args.url:
-            require_loopback(args.url)
-        if not 1 <= args.repeats <= MAX_REPEATS:
-            raise ValueError(f"--repeats: {args.repeats} is outside 1..{MAX_REPEATS}")
+        check_target(args)
     except ValueError as error:
         print(f"stream_latency: error: {error}", file=sys.stderr)
         return 2
-
-    def run(url: str) -> dict:
-        return measure_stream(url, repeats=args.repeats, motion_seconds=args.motion_seconds, segments=args.segments,
-                              api_key=args.api_key)
-
-    if args.url:
-        url = args.url.rstrip("/")
-        result = run(url)
-    else:
-        env = {} if args.intra_op_threads is None else {"T2M_INTRA_OP_THREADS": str(args.intra_op_threads)}
-        with running_server(args.model, env=env) as server:
-            url = server.url
-            result = run(url)
+    env = {} if args.intra_op_threads is None else {"T2M_INTRA_OP_THREADS": str(args.intra_op_threads)}
+    url, result = on_target(args, lambda url: measure_stream(url, repeats=args.repeats,
+                                                             motion_seconds=args.motion_seconds,
+                                                             segments=args.segments, api_key=args.api_key), env)
     print(format_table(result, url))
-    if args.json_out:
-        Path(args.json_out).write_text(json.dumps(result, indent=2))
+    write_json(args, result)
     return 0
 
 

@@ -1,7 +1,9 @@
 """Request building and response interpretation shared by the sync and async clients (no I/O here)."""
 from __future__ import annotations
 
+import contextlib
 import json
+from collections.abc import Iterator
 from typing import Any
 
 import httpx
@@ -10,8 +12,8 @@ import numpy as np
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
 from t2m.client.models import FrameChunk, Motion, RawResult, SegmentsLike, to_segments, warnings_of
 
-__all__ = ["DEFAULT_TIMEOUT_S", "DEFAULT_URL", "StreamReader", "auth_headers", "raise_for_answer", "raw_result",
-           "request_body"]
+__all__ = ["DEFAULT_TIMEOUT_S", "DEFAULT_URL", "StreamReader", "auth_headers", "connection_errors", "raise_for_answer",
+           "raw_result", "request_body", "stream_body"]
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 DEFAULT_TIMEOUT_S = 120.0
@@ -28,6 +30,21 @@ def request_body(segments: SegmentsLike, fmt: str, seed: int | None, guidance: f
     if stream:
         body["stream"] = True
     return body
+
+
+def stream_body(segments: SegmentsLike, seed: int | None, guidance: float | None, temperature: float,
+                top_k: int | None, model: str | None) -> dict[str, Any]:
+    """The body of a streamed json request."""
+    return request_body(segments, "json", seed, guidance, temperature, top_k, model, stream=True)
+
+
+@contextlib.contextmanager
+def connection_errors(http: httpx.Client | httpx.AsyncClient) -> Iterator[None]:
+    """httpx's transport failures (refused, reset, timed out) as T2MConnectionError naming the server."""
+    try:
+        yield
+    except httpx.TransportError as error:
+        raise T2MConnectionError(f"cannot reach {http.base_url}: {error}") from error
 
 
 def auth_headers(api_key: str | None) -> dict[str, str]:

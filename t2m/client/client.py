@@ -23,11 +23,12 @@ from t2m.client._common import (
     DEFAULT_URL,
     StreamReader,
     auth_headers,
+    connection_errors,
     raise_for_answer,
     raw_result,
     request_body,
+    stream_body,
 )
-from t2m.client.errors import T2MConnectionError
 from t2m.client.models import FrameChunk, Health, Motion, RawResult, SegmentsLike
 
 __all__ = ["AsyncT2MClient", "T2MClient"]
@@ -51,19 +52,15 @@ class T2MClient:
         self._http.close()
 
     def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        try:
+        with connection_errors(self._http):
             response = self._http.request(method, path, **kwargs)
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         raise_for_answer(response)
         return response
 
     def health(self) -> Health:
         """The server's readiness (a loading server answers status 'loading' rather than raising)."""
-        try:
+        with connection_errors(self._http):
             response = self._http.get("/health")
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         if response.status_code == 503:
             return Health.from_json(response.json())
         raise_for_answer(response)
@@ -82,19 +79,15 @@ class T2MClient:
         """The motion of `generate` as it is made: FrameChunks as their frames become final, then the whole Motion.
         A refused request raises (ValidationError, OverloadedError, ...) when the iteration starts; a failure after
         the first frames raises ServerError there."""
-        body = request_body(segments, "json", seed, guidance, temperature, top_k, model, stream=True)
         reader = StreamReader()
-        try:
-            with self._http.stream("POST", "/generate", json=body) as response:
-                if response.status_code != 200:
-                    response.read()
-                    raise_for_answer(response)
-                for line in response.iter_lines():
-                    item = reader.feed(line)
-                    if item is not None:
-                        yield item
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
+        with connection_errors(self._http), self._http.stream("POST", "/generate", json=stream_body(
+                segments, seed, guidance, temperature, top_k, model)) as response:
+            if response.status_code != 200:
+                response.read()
+                raise_for_answer(response)
+            for line in response.iter_lines():
+                if (item := reader.feed(line)) is not None:
+                    yield item
         reader.finish()
 
     def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
@@ -139,18 +132,14 @@ class AsyncT2MClient:
         await self._http.aclose()
 
     async def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        try:
+        with connection_errors(self._http):
             response = await self._http.request(method, path, **kwargs)
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         raise_for_answer(response)
         return response
 
     async def health(self) -> Health:
-        try:
+        with connection_errors(self._http):
             response = await self._http.get("/health")
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         if response.status_code == 503:
             return Health.from_json(response.json())
         raise_for_answer(response)
@@ -165,19 +154,16 @@ class AsyncT2MClient:
                               guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None,
                               model: str | None = None) -> AsyncIterator[FrameChunk | Motion]:
         """`async for item in client.generate_stream(...)`: FrameChunks, then the whole Motion (as T2MClient's)."""
-        body = request_body(segments, "json", seed, guidance, temperature, top_k, model, stream=True)
         reader = StreamReader()
-        try:
-            async with self._http.stream("POST", "/generate", json=body) as response:
+        with connection_errors(self._http):
+            async with self._http.stream("POST", "/generate", json=stream_body(segments, seed, guidance, temperature,
+                                                                                  top_k, model)) as response:
                 if response.status_code != 200:
                     await response.aread()
                     raise_for_answer(response)
                 async for line in response.aiter_lines():
-                    item = reader.feed(line)
-                    if item is not None:
+                    if (item := reader.feed(line)) is not None:
                         yield item
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         reader.finish()
 
     async def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
