@@ -127,6 +127,9 @@ class StreamReader:
             self.received += len(frames)
             return FrameChunk(start_frame=message["start_frame"], frames=frames, fps=self.fps)
         if kind == "end":
+            if message.get("frame_count") != self.received:
+                raise T2MError(f"the stream carried {self.received} frames, its end message says "
+                               f"{message.get('frame_count')}")
             whole = np.concatenate(self.chunks) if self.chunks else np.zeros((0, len(message["joints"]), 3), np.float32)
             self.motion = Motion.from_json({**message, "frames": whole})
             return self.motion

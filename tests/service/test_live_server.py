@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import threading
 import time
 
@@ -20,6 +21,7 @@ from t2m.client import (
     ServerError,
     T2MClient,
     T2MConnectionError,
+    T2MError,
     ValidationError,
 )
 from tests.service.conftest import LiveServer, free_port
@@ -173,6 +175,26 @@ def test_async_sdk_streams_frames(live_server):
                 await anext(t2m.generate_stream([("walk", 0.1)]))
 
     asyncio.run(scenario())
+
+
+def test_the_sdk_refuses_a_broken_stream():
+    from t2m.client._common import StreamReader
+
+    start = json.dumps({"type": "start", "fps": 20, "joints": ["a"], "parents": [-1], "model": {}, "seed": 1})
+    frames = json.dumps({"type": "frames", "start_frame": 0, "frames": [[[0.0, 1.0, 2.0]]]})
+    end = json.dumps({"type": "end", "fps": 20, "joints": ["a"], "parents": [-1], "segments": [], "seed": 1,
+                      "model": {"name": "m", "version": "1"}, "warnings": [], "frame_count": 2})
+    reader = StreamReader()
+    reader.feed(start)
+    reader.feed(frames)
+    with pytest.raises(T2MError, match="out of order"):
+        reader.feed(frames)                      # frames from 0 again: a repeated or lost message
+    with pytest.raises(T2MError, match="end message says 2"):
+        reader.feed(end)                         # one frame arrived, the end counts two
+    cut = StreamReader()
+    cut.feed(start)
+    with pytest.raises(T2MConnectionError, match="without its end message"):
+        cut.finish()                             # the connection closed before the end
 
 
 def test_sdk_stream_failing_after_its_first_frames_raises_server_error():
