@@ -6,7 +6,7 @@ loads, so no manifest field has to describe the architecture and an imported dec
 decode random codes, change the middle code, and see which frames move. Frames outside the window are computed from
 identical inputs with the same shapes, so they do not change by a single bit, and the changed frames give the reach.
 A ReLU could hide one change, so several backgrounds and replacement codes are tried and the widest reach is kept;
-tests/service/test_streaming.py checks the result against the bound computed from the graph's convolutions and
+tests/service/test_streaming_engine.py checks the result against the bound computed from the graph's convolutions and
 upsamplings.
 """
 from __future__ import annotations

@@ -10,8 +10,10 @@ service sends what is left of the Motion then.
 
 When to decode: the first final code's frames at once (time to first frame), then whenever the newly final codes
 are at least `every` and at least as many as were sent before. Chunks doubling in size cost about log2(N) decodes
-for N codes instead of N / every, and a player never waits for frames while sampling is at least twice as fast as
-real time (a chunk arrives before the frames sent before it have been played).
+for N codes instead of N / every, and once they are larger than `every`, a player is never left waiting while
+sampling is at least twice as fast as real time (a chunk arrives before the frames sent before it have been played).
+Only right after the first chunk (one code, 0.2 s) may a player wait, for a model sampling `every` codes slower
+than real time; the default model samples ~500x faster.
 """
 from __future__ import annotations
 
