@@ -12,8 +12,8 @@ When to decode: the first final code's frames at once (time to first frame), the
 are at least `every` and at least as many as were sent before. Chunks doubling in size cost about log2(N) decodes
 for N codes instead of N / every, and once they are larger than `every`, a player is never left waiting while
 sampling is at least twice as fast as real time (a chunk arrives before the frames sent before it have been played).
-Only right after the first chunk (one code, 0.2 s) may a player wait, for a model sampling `every` codes slower
-than real time; the default model samples ~500x faster.
+Only right after the first chunk (one code, 0.2 s of motion) may a player wait, for a model that takes longer than
+0.2 s to sample `every` codes; the default model samples hundreds of times faster than real time.
 """
 from __future__ import annotations
 
