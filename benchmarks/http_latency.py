@@ -12,7 +12,9 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import httpx
 import numpy as np
@@ -21,7 +23,10 @@ if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.server_process import require_loopback, running_server
 
-__all__ = ["format_table", "main", "measure_latency"]
+__all__ = ["add_target_arguments", "check_target", "format_table", "main", "measure_latency", "on_target",
+           "write_json"]
+
+T = TypeVar("T")
 
 FORMATS = ("json", "bvh", "glb")
 MAX_REPEATS = 200
@@ -73,45 +78,61 @@ def format_table(rows: list[dict], url: str, motion_seconds: float, segments: in
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def add_target_arguments(parser: argparse.ArgumentParser, repeats: int) -> None:
+    """What the latency benchmarks share: --url or --model, --repeats, the motion, --api-key, --json-out."""
     target = parser.add_mutually_exclusive_group(required=True)
     target.add_argument("--url", help="a running service on loopback, e.g. http://127.0.0.1:8000")
     target.add_argument("--model", help="start `t2m serve` on this bundle on a free loopback port and time that")
-    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--repeats", type=int, default=repeats)
     parser.add_argument("--motion-seconds", type=float, default=10.0)
     parser.add_argument("--segments", type=int, default=1, help="split the motion into this many sentences")
-    parser.add_argument("--formats", default=",".join(FORMATS), help="comma-separated subset of json,bvh,glb")
     parser.add_argument("--api-key")
     parser.add_argument("--json-out", help="also write the figures as JSON here")
+
+
+def check_target(args: argparse.Namespace) -> None:
+    """ValueError for a --url off this machine or --repeats out of bounds, before anything is sent."""
+    if args.url:
+        require_loopback(args.url)
+    if not 1 <= args.repeats <= MAX_REPEATS:
+        raise ValueError(f"--repeats: {args.repeats} is outside 1..{MAX_REPEATS}")
+
+
+def on_target(args: argparse.Namespace, measure: Callable[[str], T], env: dict[str, str] | None = None,
+              ) -> tuple[str, T]:
+    """(url, measure(url)) on --url, or on a `t2m serve` started on --model (with `env`) for the measurement."""
+    if args.url:
+        url = args.url.rstrip("/")
+        return url, measure(url)
+    with running_server(args.model, env=env) as server:
+        return server.url, measure(server.url)
+
+
+def write_json(args: argparse.Namespace, figures: Any) -> None:
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(figures, indent=2))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    add_target_arguments(parser, repeats=10)
+    parser.add_argument("--formats", default=",".join(FORMATS), help="comma-separated subset of json,bvh,glb")
     args = parser.parse_args(argv)
     formats = tuple(f.strip() for f in args.formats.split(",") if f.strip())
     try:
-        if args.url:
-            require_loopback(args.url)
-        if not 1 <= args.repeats <= MAX_REPEATS:
-            raise ValueError(f"--repeats: {args.repeats} is outside 1..{MAX_REPEATS}")
+        check_target(args)
         unknown = set(formats) - set(FORMATS)
         if unknown:
             raise ValueError(f"--formats: unknown {sorted(unknown)}; choose from {','.join(FORMATS)}")
     except ValueError as error:
         print(f"http_latency: error: {error}", file=sys.stderr)
         return 2
-
-    def run(url: str) -> list[dict]:
-        return measure_latency(url, repeats=args.repeats, motion_seconds=args.motion_seconds,
-                               segments=args.segments, formats=formats, api_key=args.api_key)
-
-    if args.url:
-        url = args.url.rstrip("/")
-        rows = run(url)
-    else:
-        with running_server(args.model) as server:
-            url = server.url
-            rows = run(url)
+    url, rows = on_target(args, lambda url: measure_latency(url, repeats=args.repeats,
+                                                            motion_seconds=args.motion_seconds,
+                                                            segments=args.segments, formats=formats,
+                                                            api_key=args.api_key))
     print(format_table(rows, url, args.motion_seconds, args.segments))
-    if args.json_out:
-        Path(args.json_out).write_text(json.dumps(rows, indent=2))
+    write_json(args, rows)
     return 0
 
 

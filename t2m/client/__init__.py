@@ -1,11 +1,12 @@
 """The t2m Python SDK: `T2MClient` / `AsyncT2MClient` over httpx. Imports nothing of the service."""
 from t2m.client.client import AsyncT2MClient, T2MClient
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
-from t2m.client.models import Health, ModelInfo, Motion, RawResult, Segment, SegmentSpan
+from t2m.client.models import FrameChunk, Health, ModelInfo, Motion, RawResult, Segment, SegmentSpan
 
 __all__ = [
            "AsyncT2MClient",
            "AuthError",
+           "FrameChunk",
            "Health",
            "ModelInfo",
            "Motion",

@@ -4,17 +4,32 @@
         motion = t2m.generate([("a person walks forward", 3.0), ("a person waves", 2.0)], seed=1)
         motion.frames.shape          # (100, 22, 3), metres
         t2m.save_bvh("wave.bvh", [("a person waves", 2.0)])
+        for item in t2m.generate_stream([("a person walks forward", 10.0)]):   # frames as they are made
+            if isinstance(item, FrameChunk):
+                play(item.frames)    # [n, 22, 3], frames item.start_frame.. of the motion
+            else:
+                motion = item        # the whole Motion, last
 """
 from __future__ import annotations
 
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 
-from t2m.client._common import DEFAULT_TIMEOUT_S, DEFAULT_URL, auth_headers, raise_for_answer, raw_result, request_body
-from t2m.client.errors import T2MConnectionError
-from t2m.client.models import Health, Motion, RawResult, SegmentsLike
+from t2m.client._common import (
+    DEFAULT_TIMEOUT_S,
+    DEFAULT_URL,
+    StreamReader,
+    auth_headers,
+    connection_errors,
+    raise_for_answer,
+    raw_result,
+    request_body,
+    stream_body,
+)
+from t2m.client.models import FrameChunk, Health, Motion, RawResult, SegmentsLike
 
 __all__ = ["AsyncT2MClient", "T2MClient"]
 
@@ -37,19 +52,15 @@ class T2MClient:
         self._http.close()
 
     def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        try:
+        with connection_errors(self._http):
             response = self._http.request(method, path, **kwargs)
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         raise_for_answer(response)
         return response
 
     def health(self) -> Health:
         """The server's readiness (a loading server answers status 'loading' rather than raising)."""
-        try:
+        with connection_errors(self._http):
             response = self._http.get("/health")
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         if response.status_code == 503:
             return Health.from_json(response.json())
         raise_for_answer(response)
@@ -61,6 +72,23 @@ class T2MClient:
         (`health().model_names`), None = the server's default."""
         body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json(self._send("POST", "/generate", json=body).json())
+
+    def generate_stream(self, segments: SegmentsLike, *, seed: int | None = None, guidance: float | None = None,
+                        temperature: float = 1.0, top_k: int | None = None,
+                        model: str | None = None) -> Iterator[FrameChunk | Motion]:
+        """The motion of `generate` as it is made: FrameChunks as their frames become final, then the whole Motion.
+        A refused request raises (ValidationError, OverloadedError, ...) when the iteration starts; a failure after
+        the first frames raises ServerError there."""
+        reader = StreamReader()
+        with connection_errors(self._http), self._http.stream("POST", "/generate", json=stream_body(
+                segments, seed, guidance, temperature, top_k, model)) as response:
+            if response.status_code != 200:
+                response.read()
+                raise_for_answer(response)
+            for line in response.iter_lines():
+                if (item := reader.feed(line)) is not None:
+                    yield item
+        reader.finish()
 
     def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
                      guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None,
@@ -104,18 +132,14 @@ class AsyncT2MClient:
         await self._http.aclose()
 
     async def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        try:
+        with connection_errors(self._http):
             response = await self._http.request(method, path, **kwargs)
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         raise_for_answer(response)
         return response
 
     async def health(self) -> Health:
-        try:
+        with connection_errors(self._http):
             response = await self._http.get("/health")
-        except httpx.TransportError as error:
-            raise T2MConnectionError(f"cannot reach {self._http.base_url}: {error}") from error
         if response.status_code == 503:
             return Health.from_json(response.json())
         raise_for_answer(response)
@@ -125,6 +149,22 @@ class AsyncT2MClient:
                        temperature: float = 1.0, top_k: int | None = None, model: str | None = None) -> Motion:
         body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json((await self._send("POST", "/generate", json=body)).json())
+
+    async def generate_stream(self, segments: SegmentsLike, *, seed: int | None = None,
+                              guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None,
+                              model: str | None = None) -> AsyncIterator[FrameChunk | Motion]:
+        """`async for item in client.generate_stream(...)`: FrameChunks, then the whole Motion (as T2MClient's)."""
+        reader = StreamReader()
+        with connection_errors(self._http):
+            async with self._http.stream("POST", "/generate", json=stream_body(segments, seed, guidance, temperature,
+                                                                                  top_k, model)) as response:
+                if response.status_code != 200:
+                    await response.aread()
+                    raise_for_answer(response)
+                async for line in response.aiter_lines():
+                    if (item := reader.feed(line)) is not None:
+                        yield item
+        reader.finish()
 
     async def generate_raw(self, segments: SegmentsLike, fmt: str, *, seed: int | None = None,
                            guidance: float | None = None, temperature: float = 1.0,

@@ -8,6 +8,7 @@ from typing import Any, TypeAlias
 import numpy as np
 
 __all__ = [
+    "FrameChunk",
     "Health",
     "ModelInfo",
     "Motion",
@@ -98,6 +99,20 @@ class Motion:
                    segments=[SegmentSpan(s["text"], int(s["start_frame"]), int(s["end_frame"]))
                              for s in data["segments"]],
                    seed=int(data["seed"]), model=ModelInfo(**data["model"]), warnings=list(data.get("warnings", [])))
+
+
+@dataclass(frozen=True)
+class FrameChunk:
+    """Frames of a streamed motion as they arrive (final: they never change): frames start_frame ..
+    start_frame + len(frames) - 1 of the whole motion, [n, J, 3] metres, at `fps` frames per second."""
+
+    start_frame: int
+    frames: np.ndarray
+    fps: int
+
+    @property
+    def start_seconds(self) -> float:
+        return self.start_frame / self.fps
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ position and one `position` serves them all. Per segment there is a cond row and
 (zero condition), combined as uncond + s * (cond - uncond). A segment with a target token count has End masked until
 the target and stops at it; a free segment stops when it samples End (never as its first token) or at max_tokens.
 Finished rows leave the cache so that a long segment does not make the short ones pay. Randomness comes from each
-request's own numpy Generator, one uniform per active segment per step, segments in request order.
+request's own numpy Generator, one uniform per active segment per step, segments in request order. A job's
+`progress` sees its codes after every step (the service streams frames from them).
 
 `GptStep` is what the loop needs from a network: the service wraps gpt_step.onnx, the PyTorch reference wraps
 MotionGPT.forward_step; both take and return numpy arrays.
@@ -46,6 +47,8 @@ class SamplingJob:
     rng: np.random.Generator
     greedy: bool = False
     cancelled: Callable[[], bool] = field(default=lambda: False)
+    # after each step that gave the job codes: each segment's codes so far and whether it is finished (streaming)
+    progress: Callable[[list[list[int]], list[bool]], None] | None = None
 
 
 @dataclass
@@ -157,6 +160,9 @@ def sample_codes(step: GptStep, jobs: Sequence[SamplingJob], max_tokens: int, en
                 continue
             for s, token in zip(active, _choose(job, active, logits, cond_row, null_row, batch, end_id).tolist()):
                 _advance(batch.segments[s], token, end_id, max_tokens)
+            if job.progress is not None:
+                mine = [batch.segments[s] for s in batch.of_job[j]]
+                job.progress([segment.tokens for segment in mine], [segment.done for segment in mine])
         _drop_finished(batch)
         position += 1
     return [None if cancelled[j] else [np.asarray(batch.segments[s].tokens, dtype=np.int64) for s in indices]

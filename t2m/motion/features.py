@@ -83,13 +83,55 @@ def validate_joints(joints: np.ndarray, skeleton: Skeleton | str = SMPL22, min_f
 # ---------------------------------------------------------------- features -> joints
 
 
-def _heading_quats(root_angular_velocity: np.ndarray) -> np.ndarray:
-    """Root quaternions (cos a, 0, sin a, 0) with a_0 = 0 and a_t = sum of channel 0 over frames < t."""
-    angle = np.concatenate([[0.0], np.cumsum(root_angular_velocity[:-1])])
-    quats = np.zeros((len(angle), 4))
-    quats[:, 0] = np.cos(angle)
-    quats[:, 2] = np.sin(angle)
+def _heading_quats(angles: np.ndarray) -> np.ndarray:
+    """Root quaternions (cos a, 0, sin a, 0) of the heading angles a."""
+    quats = np.zeros((len(angles), 4))
+    quats[:, 0] = np.cos(angles)
+    quats[:, 2] = np.sin(angles)
     return quats
+
+
+def _running_sum(values: np.ndarray, carry: np.ndarray | None) -> np.ndarray:
+    """Cumulative sums along axis 0 continuing from `carry` (None: from nothing), added in the order one cumsum over
+    the whole sequence adds them, so that sums made in pieces equal the sums made at once bit for bit."""
+    if carry is None:
+        return np.cumsum(values, axis=0)
+    return np.cumsum(np.concatenate([carry[None], values]), axis=0)[1:]
+
+
+class JointRecovery:
+    """Feature rows -> joint positions, in pieces. A frame depends on its own row and the rows before it (the heading
+    and the root position are running sums of the rows' velocities), never on later rows, so joints can be recovered
+    while a motion is still being decoded (streaming); every piece equals the same frames of `features_to_joints`
+    over the whole motion, bit for bit."""
+
+    def __init__(self, skeleton: Skeleton | str = SMPL22) -> None:
+        self.skeleton = get_skeleton(skeleton)
+        self.heading: np.ndarray | None = None      # root quaternion of the last frame recovered
+        self._angle: np.ndarray | None = None       # its heading angle
+        self._root: np.ndarray | None = None        # its root position [3] (before the height is set)
+        self._last_row: np.ndarray | None = None    # its feature row: its velocities move the root to the next frame
+
+    def push(self, features: np.ndarray) -> np.ndarray:
+        """Joint positions [T, J, 3] (float64) of the next T feature rows [T, D]."""
+        data = validate_features(features, self.skeleton)
+        num_frames, num_joints = len(data), self.skeleton.num_joints
+        # row t-1 turns the heading and moves the root to frame t; the very first frame has no row before it
+        before = data[:-1] if self._last_row is None else np.concatenate([self._last_row[None], data[:-1]])
+        angles = (np.concatenate([[0.0], np.cumsum(before[:, 0])]) if self._angle is None
+                  else _running_sum(before[:, 0], self._angle))
+        root_quat = _heading_quats(angles)
+        step = np.zeros((num_frames, 3))
+        step[num_frames - len(before):, [0, 2]] = before[:, 1:3]
+        root = _running_sum(qrot(qinv(root_quat), step), self._root)
+        self._angle, self._root, self._last_row = np.asarray(angles[-1]), root[-1].copy(), data[-1].copy()
+        self.heading = root_quat[-1]
+        root[:, 1] = data[:, 3]
+        ric = data[:, 4 : 4 + 3 * (num_joints - 1)].reshape(num_frames, num_joints - 1, 3)
+        others = qrot(qinv(root_quat)[:, None, :], ric)
+        others[..., 0] += root[:, None, 0]
+        others[..., 2] += root[:, None, 2]
+        return np.concatenate([root[:, None, :], others], axis=1)
 
 
 def features_to_joints(features: np.ndarray, skeleton: Skeleton | str = SMPL22,
@@ -99,22 +141,13 @@ def features_to_joints(features: np.ndarray, skeleton: Skeleton | str = SMPL22,
     with_final_frame=True appends the frame the last row's local velocities lead to ([T+1, J, 3]): the clip the
     features were extracted from, which HumanML3D's own recovery drops.
     """
-    skeleton = get_skeleton(skeleton)
-    data = validate_features(features, skeleton)
-    num_frames, num_joints = len(data), skeleton.num_joints
-    root_quat = _heading_quats(data[:, 0])
-    step = np.zeros((num_frames, 3))
-    step[1:, [0, 2]] = data[:-1, 1:3]  # the velocity of row t-1 moves the root to frame t
-    root = np.cumsum(qrot(qinv(root_quat), step), axis=0)
-    root[:, 1] = data[:, 3]
-    ric = data[:, 4 : 4 + 3 * (num_joints - 1)].reshape(num_frames, num_joints - 1, 3)
-    others = qrot(qinv(root_quat)[:, None, :], ric)
-    others[..., 0] += root[:, None, 0]
-    others[..., 2] += root[:, None, 2]
-    joints = np.concatenate([root[:, None, :], others], axis=1)
-    if with_final_frame:
-        velocity = data[-1, 4 + 9 * (num_joints - 1) : 4 + 9 * (num_joints - 1) + 3 * num_joints]
-        step = qrot(qinv(root_quat[-1]), velocity.reshape(num_joints, 3))
+    recovery = JointRecovery(skeleton)
+    joints = recovery.push(features)
+    if with_final_frame and recovery.heading is not None:
+        num_joints = recovery.skeleton.num_joints
+        first = 4 + 9 * (num_joints - 1)
+        velocity = np.asarray(features, dtype=np.float64)[-1, first : first + 3 * num_joints]
+        step = qrot(qinv(recovery.heading), velocity.reshape(num_joints, 3))
         joints = np.concatenate([joints, (joints[-1] + step)[None]], axis=0)
     return joints.astype(np.float32)
 

@@ -1,10 +1,13 @@
-"""A Motion in the three answer formats: json (joint positions), BVH (text) and glTF binary.
+"""A Motion in the three answer formats: json (joint positions), BVH (text) and glTF binary, and the json format's
+stream (newline-delimited JSON messages: start, frames..., end, or error once the answer has begun).
 
 BVH and glb come from the motion core (motion.bvh_export turns positions into a rotation hierarchy with motion.ik;
-motion.gltf writes a skinned-skeleton animation); this module only picks the writer and the HTTP metadata.
+motion.gltf writes a skinned-skeleton animation); this module only picks the writer and the HTTP metadata. A stream's
+end message is the json answer without its frames, so its frames messages put together with it give that answer.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -13,9 +16,12 @@ import numpy as np
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.types import ModelLimits, Motion
 
-__all__ = ["FILENAMES", "MEDIA_TYPES", "Rendered", "motion_bvh", "motion_glb", "motion_json", "preload", "render"]
+__all__ = ["FILENAMES", "MEDIA_TYPES", "STREAM_MEDIA_TYPE", "Rendered", "frames_json", "motion_bvh", "motion_glb",
+           "motion_json", "ndjson", "preload", "render", "stream_end", "stream_error", "stream_frames",
+           "stream_start"]
 
 MEDIA_TYPES = {"json": "application/json", "bvh": "text/plain; charset=utf-8", "glb": "model/gltf-binary"}
+STREAM_MEDIA_TYPE = "application/x-ndjson"
 FILENAMES = {"bvh": "motion.bvh", "glb": "motion.glb", "json": "motion.json"}
 JSON_DECIMALS = 5   # 10 micrometres: far below any visible difference, keeps the answer compact
 
@@ -27,20 +33,55 @@ class Rendered:
     filename: str
 
 
+def frames_json(joints: np.ndarray) -> list:
+    """Joint positions [T, J, 3] as nested lists, rounded to JSON_DECIMALS (the same in a stream as in a whole)."""
+    return np.round(np.asarray(joints, dtype=np.float64), JSON_DECIMALS).tolist()
+
+
+def _playback(fps: int, limits: ModelLimits) -> dict[str, Any]:
+    """How to play the frames: the rate, the joint names, the parents."""
+    return {"fps": fps, "joints": list(limits.joint_names), "parents": list(limits.parents)}
+
+
+def _model(limits: ModelLimits) -> dict[str, str]:
+    return {"name": limits.name, "version": limits.version}
+
+
+def _about(motion: Motion, limits: ModelLimits) -> dict[str, Any]:
+    """What the frames are: the sentences' spans, the seed, the model, the warnings."""
+    return {"segments": [{"text": s.text, "start_frame": s.start_frame, "end_frame": s.end_frame}
+                         for s in motion.segments],
+            "seed": motion.seed, "model": _model(limits), "warnings": list(motion.warnings)}
+
+
 def motion_json(motion: Motion, limits: ModelLimits) -> dict[str, Any]:
     """The json answer (schemas.MotionResponse), built directly as plain data for speed."""
-    frames = np.round(np.asarray(motion.joints, dtype=np.float64), JSON_DECIMALS).tolist()
-    return {
-        "fps": motion.fps,
-        "joints": list(limits.joint_names),
-        "parents": list(limits.parents),
-        "frames": frames,
-        "segments": [{"text": s.text, "start_frame": s.start_frame, "end_frame": s.end_frame}
-                     for s in motion.segments],
-        "seed": motion.seed,
-        "model": {"name": limits.name, "version": limits.version},
-        "warnings": list(motion.warnings),
-    }
+    return {**_playback(motion.fps, limits), "frames": frames_json(motion.joints), **_about(motion, limits)}
+
+
+def ndjson(message: dict[str, Any]) -> bytes:
+    """One line of a stream."""
+    return json.dumps(message, separators=(",", ":")).encode() + b"\n"
+
+
+def stream_start(limits: ModelLimits, seed: int) -> dict[str, Any]:
+    """What a player needs before the first frame: the rate, the skeleton, the model and the seed."""
+    return {"type": "start", **_playback(limits.fps, limits), "model": _model(limits), "seed": seed}
+
+
+def stream_frames(start_frame: int, joints: np.ndarray) -> dict[str, Any]:
+    """Frames start_frame .. start_frame + len(joints) - 1, final: they never change afterwards."""
+    return {"type": "frames", "start_frame": start_frame, "frames": frames_json(joints)}
+
+
+def stream_end(motion: Motion, limits: ModelLimits) -> dict[str, Any]:
+    """The json answer without its frames (sent before it), and how many frames there were."""
+    return {"type": "end", **_playback(motion.fps, limits), **_about(motion, limits), "frame_count": len(motion.joints)}
+
+
+def stream_error(status: int, detail: str) -> dict[str, Any]:
+    """A failure after the answer began (the HTTP status is 200 by then): what the status would have been."""
+    return {"type": "error", "status": status, "detail": detail}
 
 
 def motion_bvh(motion: Motion, skeleton_name: str = "smpl22") -> str:
@@ -66,8 +107,6 @@ def preload() -> None:
 def render(motion: Motion, fmt: str, limits: ModelLimits) -> Rendered:
     """The motion as bytes in format `fmt` ('json' | 'bvh' | 'glb') with its media type and file name."""
     if fmt == "json":
-        import json
-
         body = json.dumps(motion_json(motion, limits), separators=(",", ":")).encode()
     elif fmt == "bvh":
         body = motion_bvh(motion, limits.skeleton).encode()

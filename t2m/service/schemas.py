@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstraints, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstraints, ValidationInfo, field_validator
 
 from t2m import __version__
 from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
@@ -101,11 +101,24 @@ class GenerateRequest(_Strict):
     model: Annotated[str, StringConstraints(min_length=1, max_length=MAX_MODEL_NAME_CHARS)] | None = Field(
         None, description="The served model to use, by its manifest name (GET /health lists them under `models`); "
                           "null = the default model.", examples=["t2m-bandai-minilm"])
+    stream: bool = Field(
+        False, description="true: the answer is newline-delimited JSON (application/x-ndjson): a `start` message, "
+                           "`frames` messages as the frames become final, then an `end` message with the rest of the "
+                           "json answer (segments, seed, model, warnings). Only the json format streams.")
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [{
         "segments": [{"text": "a person walks forward", "duration": 3.0},
                      {"text": "a person waves with the right hand", "duration": 2.0}],
         "format": "json", "seed": 123, "guidance": 3.0, "temperature": 1.0, "top_k": None}]})
+
+    @field_validator("stream")
+    @classmethod
+    def _only_json_streams(cls, stream: bool, info: ValidationInfo) -> bool:
+        """BVH and glb are whole files (a BVH header states the frame count; a glb's binary chunk is sized)."""
+        if stream and info.data.get("format", "json") != "json":
+            raise ValueError(f"only the json format streams; format {info.data['format']!r} is a whole file "
+                             "(send stream false or leave it out)")
+        return stream
 
     @field_validator("segments")
     @classmethod

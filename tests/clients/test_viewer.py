@@ -1,8 +1,9 @@
 """The browser viewer in a real headless Chromium against a real `t2m serve` on loopback.
 
-Types sentences, clicks Generate, waits for the page to report the frames, checks that the skeleton is drawn and
-animates, that orbiting changes the view, that BVH and glb downloads arrive, that a 422 names the field on the page,
-and that the console stays clean. The screenshot lands in artifacts/viewer/ (env T2M_ARTIFACTS_DIR overrides).
+Types sentences, clicks Generate, waits for the page to report the frames (streamed: it starts playing with the
+first frames message), checks that the skeleton is drawn and animates, that orbiting changes the view, that BVH and
+glb downloads arrive, that a 422 names the field on the page, and that the console stays clean. The screenshot lands
+in artifacts/viewer/ (env T2M_ARTIFACTS_DIR overrides).
 """
 from __future__ import annotations
 
@@ -108,6 +109,8 @@ def test_generate_animates_and_downloads(server, browser, bundle_dir):
     assert state == "ready", f"page reports {state}: {message}"
     frames = int(browser.evaluate("document.body.dataset.frames"))
     assert frames == 60 + 40  # round(duration * 20 / 4) * 4 frames per segment: 3 s and 2 s
+    # The answer was streamed: playback began with the first frames message, before the rest had arrived.
+    assert 0 < int(browser.evaluate("document.body.dataset.framesAtStart")) < frames
     assert "seed 123" in message
     # The model's warnings are shown: the default model has a caption index and never saw anyone jump.
     warnings = browser.evaluate("Array.from(document.querySelectorAll('#warnings li')).map(li => li.textContent)")

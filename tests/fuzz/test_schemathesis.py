@@ -6,9 +6,9 @@ must be refused and requests without the API key must get 401. The number of exa
 (T2M_FUZZ_EXAMPLES, default 60 per operation).
 
 One schemathesis check is replaced by a narrower one: a JSON schema cannot state cross-field or model-dependent
-limits (total duration <= 120 s, top_k <= the model's codebook, a segment's tokens <= the model's maximum) nor the
-names of the models a server loaded (`model`), so a schema-valid request may get 422 - but only for one of those
-rules, each named in the answer.
+limits (total duration <= 120 s, stream only with the json format, top_k <= the model's codebook, a segment's tokens
+<= the model's maximum) nor the names of the models a server loaded (`model`), so a schema-valid request may get
+422 - but only for one of those rules, each named in the answer.
 """
 from __future__ import annotations
 
@@ -30,9 +30,10 @@ MAX_EXAMPLES = int(os.environ.get("T2M_FUZZ_EXAMPLES", "60"))
 # schemathesis checks that requests without it are refused.
 API_KEY = "fuzz-test-key"
 AUTH = {"Authorization": f"Bearer {API_KEY}"}
-# The rules beyond the schema (service/schemas.py model_limit_errors, unknown_model_error and the total-duration
-# validator).
-RULES_BEYOND_SCHEMA = ("total duration", "codebook size", "this model makes at most", "no model named")
+# The rules beyond the schema (service/schemas.py model_limit_errors, unknown_model_error, the total-duration and the
+# stream-only-as-json validators).
+RULES_BEYOND_SCHEMA = ("total duration", "codebook size", "this model makes at most", "no model named",
+                       "only the json format streams")
 
 
 def _published_schema() -> dict:

@@ -9,6 +9,7 @@ from benchmarks.http_latency import main as latency_main
 from benchmarks.load_test import main as load_main
 from benchmarks.load_test import run_phase
 from benchmarks.server_process import require_loopback
+from benchmarks.stream_latency import main as stream_main
 
 
 @pytest.mark.parametrize("url", ["http://127.0.0.1:8000", "http://localhost:1", "http://[::1]:8000/"])
@@ -29,8 +30,10 @@ def test_cli_refuses_in_one_line(capsys):
     assert load_main(["--url", "http://127.0.0.1:9", "--seconds", "86400"]) == 2
     assert latency_main(["--url", "http://192.168.1.1"]) == 2
     assert latency_main(["--url", "http://127.0.0.1:9", "--formats", "json,fbx"]) == 2
+    assert stream_main(["--url", "http://10.0.0.5:8000"]) == 2
+    assert stream_main(["--url", "http://127.0.0.1:9", "--repeats", "0"]) == 2
     errors = capsys.readouterr().err.strip().splitlines()
-    assert len(errors) == 5 and all(": error: " in line for line in errors)
+    assert len(errors) == 7 and all(": error: " in line for line in errors)
 
 
 def test_run_phase_checks_bounds_before_connecting():

@@ -43,6 +43,23 @@ def second_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def masked_build() -> dict:
+    """How `masked_bundle` is built (the PyTorch reference rebuilds the same models from it)."""
+    return {"variant": "2d", "residual_layers": 2, "length_estimator": True, "steps": 4, "seed": 3}
+
+
+@pytest.fixture(scope="session")
+def masked_bundle(tmp_path_factory: pytest.TempPathFactory, masked_build: dict) -> Path:
+    """A tiny random masked-family bundle (MoGenTS's 2D joint tokens, two residual layers, a length estimator)."""
+    import torch
+
+    from t2m.export.random_bundle import build_random_masked_bundle
+
+    torch.set_num_threads(1)
+    return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "2d", **masked_build)
+
+
+@pytest.fixture(scope="session")
 def bundle_without_uncond(random_bundle: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The same graphs, declared as trained without an unconditional branch (manifest is not hashed)."""
     target = tmp_path_factory.mktemp("bundle") / "no-uncond"

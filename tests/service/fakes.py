@@ -58,3 +58,24 @@ class FakeEngine:
         joints = joints + rng.normal(0, 0.01, joints.shape).astype(np.float32)
         warnings = [] if request.guidance == 1.0 or self.limits.unconditional_branch else ["no unconditional branch"]
         return Motion(joints=joints, fps=20, segments=spans, seed=request.seed, tokens=start // 4, warnings=warnings)
+
+
+class StreamingFakeEngine(FakeEngine):
+    """Sends the first `early` frames of each streamed request at once, then takes `delay_s` (cut short by a cancel)
+    before returning the motions: a stream that has begun and then fails, times out or is left by its client."""
+
+    def __init__(self, early: int = 8, delay_s: float = 0.0) -> None:
+        super().__init__(delay_s=0.0)
+        self.early, self.stream_delay_s = early, delay_s
+        self.cancelled: list[bool] = []
+
+    def generate_batch(self, requests: Sequence[GenerationRequest]) -> list[Motion | BaseException]:
+        motions = super().generate_batch(requests)
+        for request, motion in zip(requests, motions):
+            if request.on_frames is not None and isinstance(motion, Motion):
+                request.on_frames(motion.joints[:self.early])
+        deadline = time.perf_counter() + self.stream_delay_s
+        while time.perf_counter() < deadline and not all(r.cancelled for r in requests):
+            time.sleep(0.005)
+        self.cancelled.extend(r.cancelled for r in requests)
+        return motions

@@ -67,6 +67,8 @@ def test_overload_answers_429_with_retry_after(make_client):
     assert refused.status_code == 429
     assert refused.headers["Retry-After"] == "3"
     assert "busy" in refused.json()["detail"]
+    refused_stream = client.post("/generate", json={**BODY, "stream": True})   # refused before any stream begins
+    assert refused_stream.status_code == 429 and refused_stream.headers["content-type"] == "application/json"
     gate.set()
     first.join(10)
     second.join(10)
@@ -80,6 +82,9 @@ def test_timeout_answers_504(make_client):
     assert response.status_code == 504
     assert "0.2 s" in response.json()["detail"]
     assert time.perf_counter() - started < 3
+    # a stream whose first frames would come only with the whole motion times out the same way, as an answer
+    streamed = client.post("/generate", json={**BODY, "stream": True})
+    assert streamed.status_code == 504 and "0.2 s" in streamed.json()["detail"]
 
 
 def test_health_is_503_while_loading_then_200(make_client):

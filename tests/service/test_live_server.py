@@ -2,23 +2,26 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import threading
 import time
 
 import httpx
 import numpy as np
 import pytest
-from fakes import FakeEngine
+from fakes import FakeEngine, StreamingFakeEngine
 
 from t2m.client import (
     AsyncT2MClient,
     AuthError,
+    FrameChunk,
     Motion,
     OverloadedError,
     Segment,
     ServerError,
     T2MClient,
     T2MConnectionError,
+    T2MError,
     ValidationError,
 )
 from tests.service.conftest import LiveServer, free_port
@@ -139,3 +142,71 @@ def test_sdk_overload_and_timeout_errors():
         timeouts = [r for r in results if isinstance(r, ServerError)]
         assert timeouts and all(r.status_code == 504 for r in timeouts), results
         gate.set()
+
+
+def _check_streamed(items: list, whole: Motion) -> None:
+    """FrameChunks in order, then the Motion: its frames are the chunks', and the unstreamed motion's to 1e-5."""
+    *chunks, motion = items
+    assert len(chunks) > 2 and all(isinstance(chunk, FrameChunk) for chunk in chunks) and isinstance(motion, Motion)
+    assert [c.start_frame for c in chunks] == list(np.cumsum([0] + [len(c.frames) for c in chunks])[:-1])
+    assert np.array_equal(np.concatenate([chunk.frames for chunk in chunks]), motion.frames)
+    assert np.abs(motion.frames - whole.frames).max() <= 1e-5 + 1e-6
+    assert (motion.seed, motion.segments, motion.model, motion.warnings) == (whole.seed, whole.segments,
+                                                                             whole.model, whole.warnings)
+
+
+def test_sync_sdk_streams_frames(live_server):
+    walk = [("a person walks forward", 10.0)]
+    with T2MClient(live_server.url, api_key="test-key", timeout=30) as t2m:
+        _check_streamed(list(t2m.generate_stream(walk, seed=3)), t2m.generate(walk, seed=3))
+        with pytest.raises(ValidationError) as error:   # refused before any frame: raised as iteration starts
+            next(iter(t2m.generate_stream([("walk", 0.1)])))
+        assert error.value.fields == ["segments.0.duration"]
+
+
+def test_async_sdk_streams_frames(live_server):
+    walk = [("a person walks forward", 10.0), ("a person waves with the right hand", None)]
+
+    async def scenario() -> None:
+        async with AsyncT2MClient(live_server.url, api_key="test-key", timeout=30) as t2m:
+            items = [item async for item in t2m.generate_stream(walk, seed=5)]
+            _check_streamed(items, await t2m.generate(walk, seed=5))
+            with pytest.raises(ValidationError):
+                await anext(t2m.generate_stream([("walk", 0.1)]))
+
+    asyncio.run(scenario())
+
+
+def test_the_sdk_refuses_a_broken_stream():
+    from t2m.client._common import StreamReader
+
+    start = json.dumps({"type": "start", "fps": 20, "joints": ["a"], "parents": [-1], "model": {}, "seed": 1})
+    frames = json.dumps({"type": "frames", "start_frame": 0, "frames": [[[0.0, 1.0, 2.0]]]})
+    end = json.dumps({"type": "end", "fps": 20, "joints": ["a"], "parents": [-1], "segments": [], "seed": 1,
+                      "model": {"name": "m", "version": "1"}, "warnings": [], "frame_count": 2})
+    reader = StreamReader()
+    reader.feed(start)
+    reader.feed(frames)
+    with pytest.raises(T2MError, match="out of order"):
+        reader.feed(frames)                      # frames from 0 again: a repeated or lost message
+    with pytest.raises(T2MError, match="end message says 2"):
+        reader.feed(end)                         # one frame arrived, the end counts two
+    cut = StreamReader()
+    cut.feed(start)
+    with pytest.raises(T2MConnectionError, match="without its end message"):
+        cut.finish()                             # the connection closed before the end
+
+
+def test_sdk_stream_failing_after_its_first_frames_raises_server_error():
+    from t2m.service.app import create_app
+    from t2m.service.settings import Settings
+
+    app = create_app(Settings(request_timeout_s=0.3), engine_factory=lambda s: StreamingFakeEngine(early=8,
+                                                                                                    delay_s=5.0))
+    with LiveServer(app) as server, T2MClient(server.url, timeout=10) as t2m:
+        stream = t2m.generate_stream("walk", seed=1)
+        first = next(stream)
+        with pytest.raises(ServerError) as failure:
+            next(stream)
+    assert isinstance(first, FrameChunk) and len(first.frames) == 8
+    assert failure.value.status_code == 504

@@ -7,20 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
 
 STREAM = [("a person walks forward", 1.0), ("a person waves with the right hand", 0.8), ("a person bows", 0.6)]
-BUILD = {"variant": "2d", "residual_layers": 2, "length_estimator": True, "steps": 4, "seed": 3}
-
-
-@pytest.fixture(scope="module")
-def masked_bundle(tmp_path_factory) -> Path:
-    from t2m.export.random_bundle import build_random_masked_bundle
-
-    torch.set_num_threads(1)
-    return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "2d", **BUILD)
 
 
 @pytest.fixture(scope="module")
@@ -89,11 +79,11 @@ def test_the_same_seed_gives_the_same_motion_alone_or_batched(engine):
     assert not np.array_equal(engine.generate(_request(STREAM, seed=12)).joints, alone.joints)
 
 
-def test_served_tokens_equal_the_pytorch_reference(engine, decoded):
+def test_served_tokens_equal_the_pytorch_reference(engine, decoded, masked_build):
     from t2m.export.random_bundle import random_masked_models
     from t2m.model.masked_sampling import generate_token_maps
 
-    models = random_masked_models(**{k: v for k, v in BUILD.items() if k != "steps"})
+    models = random_masked_models(**{k: v for k, v in masked_build.items() if k != "steps"})
     engine.generate(_request(STREAM, seed=5, guidance=3.0))
     conds = engine.text.encode([text for text, _ in STREAM])
     rows = [5, 4, 3]

@@ -124,8 +124,10 @@ def test_openapi_is_generated_from_the_schemas(client):
     request_schema = schema["components"]["schemas"]["GenerateRequest"]
     assert request_schema["additionalProperties"] is False
     assert set(request_schema["properties"]) == {"segments", "format", "seed", "guidance", "temperature", "top_k",
-                                                 "model"}
+                                                 "model", "stream"}
     assert "MotionResponse" in schema["components"]["schemas"]
+    answers = schema["paths"]["/generate"]["post"]["responses"]["200"]["content"]
+    assert set(answers) == {"application/json", "text/plain", "model/gltf-binary", "application/x-ndjson"}
 
 
 def test_model_limits_resolve_the_guidance_default():

@@ -4,7 +4,8 @@ Per request: its texts through the text graph as one batch; its segments' codes 
 request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
 motion.features. Nothing here knows about HTTP. The family-specific part (which codes, from which graphs) is a codes
 object: GptCodes (t2m.decoding.gpt) or MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]); the text
-encoding, the unknown-text check, the single decode and the joints are shared.
+encoding, the unknown-text check, the single decode and the joints are shared. A streamed request (`on_frames`) of the
+GPT family also gets its frames while its codes are sampled (engine/streaming.py, as far as engine/reach.py allows).
 """
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from t2m.bundle import CaptionIndex
+from t2m.decoding.gpt import SamplingJob
+from t2m.decoding.masked import MaskedJob
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
@@ -22,6 +25,8 @@ from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.gpt_codes import GptCodes
 from t2m.service.engine.masked_codes import MaskedCodes
 from t2m.service.engine.onnx_step import OnnxGptStep
+from t2m.service.engine.reach import DecoderReach, probe_reach
+from t2m.service.engine.streaming import FrameStreamer
 from t2m.service.engine.text import TextEncoder, load_tokenizer
 from t2m.service.engine.types import (
     GenerationCancelled,
@@ -40,9 +45,11 @@ log = logging.getLogger(__name__)
 class OnnxEngine:
     """Generates motions from a bundle with onnxruntime; thread-safe (sessions are, and no state is kept per call)."""
 
-    def __init__(self, bundle: Bundle, unknown_text: str = "warn") -> None:
+    def __init__(self, bundle: Bundle, unknown_text: str = "warn", stream_every: int = 8) -> None:
         """`unknown_text`: "warn" (a warning in the answer) or "reject" (a 422 naming the segment) for a sentence far
-        from every training caption; only bundles with a caption index can tell."""
+        from every training caption; only bundles with a caption index can tell. `stream_every`: a streamed request
+        gets its first final frames at once, then the next when at least this many more codes' frames (and as many
+        as sent before) are final (engine/streaming.py; one decode each)."""
         if unknown_text not in ("warn", "reject"):
             raise ValueError(f"unknown_text must be 'warn' or 'reject', got {unknown_text!r}")
         manifest = bundle.manifest
@@ -55,6 +62,11 @@ class OnnxEngine:
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
         self.codes: GptCodes | MaskedCodes = MaskedCodes(bundle) if manifest.family == "masked" else GptCodes(bundle)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
+        # the masked family's codes exist only at the end: its frames stream once the whole motion is decoded
+        self.reach: DecoderReach | None = (
+            probe_reach(self.decoder.decode, manifest.codebook_size, manifest.frames_per_token)
+            if isinstance(self.codes, GptCodes) else None)
+        self.stream_every = stream_every
         self.unknown_text = unknown_text
         info = manifest.caption_index
         self.caption_index = None if info is None else CaptionIndex.load(bundle.path / info.file, manifest.text_dim)
@@ -69,13 +81,30 @@ class OnnxEngine:
             parents=tuple(int(p) for p in self.skeleton.parents),
             details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
                         if key in raw}, "unknown_text": self._unknown_text_details(),
+                     "streaming": self._streaming_details(),
                      **({"family": manifest.family, "masked": raw["masked"]} if manifest.masked is not None else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
-             inter_op_threads: int = 1, unknown_text: str = "warn") -> OnnxEngine:
+             inter_op_threads: int = 1, unknown_text: str = "warn", stream_every: int = 8) -> OnnxEngine:
         return cls(load_bundle(path, check_hashes=check_hashes, intra_op_threads=intra_op_threads,
-                               inter_op_threads=inter_op_threads), unknown_text=unknown_text)
+                               inter_op_threads=inter_op_threads), unknown_text=unknown_text, stream_every=stream_every)
+
+    def _streaming_details(self) -> dict:
+        """What /health says about streamed frames: how far the decoder looks ahead, hence when frames can go."""
+        if self.reach is None:
+            return {"early_frames": False, "reason": "the whole token map exists only at the end (masked family)"
+                    if isinstance(self.codes, MaskedCodes) else "the decoder looks further than the probe"}
+        return {"early_frames": True, "lookahead_tokens": self.reach.ahead, "lookbehind_tokens": self.reach.behind,
+                "every_tokens": self.stream_every}
+
+    def _stream_early(self, job: SamplingJob | MaskedJob, request: GenerationRequest) -> None:
+        """Give a streamed request's sampling job a FrameStreamer (GPT family; the masked family streams at the end)."""
+        if request.on_frames is None or self.reach is None or not isinstance(job, SamplingJob):
+            return
+        streamer = FrameStreamer(self.decoder.decode, self.skeleton, self.reach, self.limits.frames_per_token,
+                                 self.stream_every, request.on_frames)
+        job.progress = streamer.codes_arrived
 
     def _unknown_text_details(self) -> dict:
         """What /health says about detecting sentences the model was not trained on."""
@@ -126,6 +155,7 @@ class OnnxEngine:
             try:
                 job = self.codes.job(request, self.text, self.limits)
                 notes.append(self.unknown_text_warnings([s.text for s in request.segments], job.conds))
+                self._stream_early(job, request)
                 jobs.append(job)
                 owners.append(index)
             except RequestLimitError as error:

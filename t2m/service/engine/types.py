@@ -6,7 +6,7 @@ call from the CLI, the batcher and tests alike.
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -16,6 +16,7 @@ from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 __all__ = [
     "Engine",
+    "FrameSink",
     "GenerationCancelled",
     "GenerationRequest",
     "ModelLimits",
@@ -72,6 +73,11 @@ class SegmentRequest:
     duration: float | None   # seconds; None = the model ends the segment with its End token
 
 
+FrameSink = Callable[[np.ndarray], None]
+"""Receives a streamed request's frames (joints float32 [n, J, 3]) in order, from the engine's thread, as they become
+final; what it has not received when the Motion is returned, the Motion's joints hold."""
+
+
 @dataclass
 class GenerationRequest:
     """A validated request with every choice made: the same object always gives the same motion."""
@@ -82,6 +88,7 @@ class GenerationRequest:
     temperature: float = 1.0
     top_k: int | None = None
     cancel_event: threading.Event = field(default_factory=threading.Event, compare=False, repr=False)
+    on_frames: FrameSink | None = field(default=None, compare=False, repr=False)   # streaming: early frames go here
 
     def cancel(self) -> None:
         """Ask the engine to stop working on this request (e.g. its HTTP client timed out)."""

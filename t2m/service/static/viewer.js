@@ -2,8 +2,10 @@
  * t2m viewer: a form that POSTs /generate and a small 3D skeleton player.
  *
  * Everything is drawn on a 2D canvas with our own perspective projection (a pinhole camera orbiting a target),
- * so the page needs no WebGL, no libraries and no network beyond this service. The page reports its state on
- * <body data-state data-frames data-frame> so scripts and tests can follow it without scraping the UI.
+ * so the page needs no WebGL, no libraries and no network beyond this service. The answer is streamed ("stream":
+ * true, newline-delimited JSON): playback starts with the first frames and waits at the newest frame for the next.
+ * The page reports its state on <body data-state data-frames data-frame data-frames-at-start> (state: loading,
+ * streaming, ready, error) so scripts and tests can follow it without scraping the UI.
  */
 (function () {
   'use strict';
@@ -55,7 +57,8 @@
   const ctx = ui.canvas.getContext('2d');
 
   const state = {
-    motion: null, // the JSON response being shown
+    motion: null, // the motion being shown: the json answer's fields, its frames growing while it streams
+    streaming: false, // more frames are on their way
     request: null, // the request body that produced it, with the seed the server used
     playing: true,
     clock: 0, // seconds into the motion
@@ -298,20 +301,33 @@
     state.lastTick = now;
     if (state.motion && state.playing) {
       state.clock += dt;
-      setFrame(Math.floor(state.clock * state.motion.fps) % state.motion.frames.length);
+      setFrame(playbackFrame());
     }
     followTarget(dt);
     render();
     window.requestAnimationFrame(tick);
   }
 
-  function loadMotion(motion, request) {
+  /** The frame the clock points at: looping once the motion is whole, waiting at the newest frame while it streams. */
+  function playbackFrame() {
+    const motion = state.motion;
+    const available = motion.frames.length;
+    const frame = Math.floor(state.clock * motion.fps);
+    if (!state.streaming) return frame % available;
+    if (frame < available) return frame;
+    state.clock = (available - 1) / motion.fps;
+    return available - 1;
+  }
+
+  /** Starts playing a motion whose first frames have arrived (appendFrames adds the next, finishMotion the rest). */
+  function beginMotion(motion, request) {
     const frames = motion.frames;
     const parents = motion.parents;
     if (!Array.isArray(frames) || !frames.length || !Array.isArray(parents) || frames[0].length !== parents.length) {
       throw new Error('the server answered with an unexpected motion layout');
     }
     state.motion = motion;
+    state.streaming = true;
     state.request = request;
     state.sides = (motion.joints || []).map((name) =>
       /^(left|l_)/i.test(name) ? 'left' : /^(right|r_)/i.test(name) ? 'right' : 'centre');
@@ -327,14 +343,35 @@
     ui.slider.max = String(frames.length - 1);
     ui.slider.disabled = false;
     ui.play.disabled = false;
-    buildSegmentStrip(motion.segments || [], frames.length);
+    ui.strip.replaceChildren();
     setFrame(0);
     setPlaying(true);
-    ui.downloadBvh.disabled = false;
-    ui.downloadGlb.disabled = false;
+    ui.downloadBvh.disabled = true;
+    ui.downloadGlb.disabled = true;
     const model = motion.model || {};
     ui.modelInfo.textContent = model.name ? `model ${model.name} ${model.version || ''}` : '';
     document.body.dataset.frames = String(frames.length);
+    document.body.dataset.framesAtStart = String(frames.length);
+    document.body.dataset.state = 'streaming';
+  }
+
+  function appendFrames(frames) {
+    state.motion.frames.push(...frames);
+    ui.slider.max = String(state.motion.frames.length - 1);
+    document.body.dataset.frames = String(state.motion.frames.length);
+  }
+
+  /** The stream's end message: the sentences' spans, the warnings; the motion now loops and can be downloaded. */
+  function finishMotion(end) {
+    const motion = state.motion;
+    motion.segments = end.segments || [];
+    motion.warnings = end.warnings || [];
+    state.streaming = false;
+    state.currentSegment = -2;
+    buildSegmentStrip(motion.segments, motion.frames.length);
+    showSegmentAt(Math.max(state.frame, 0));
+    ui.downloadBvh.disabled = false;
+    ui.downloadGlb.disabled = false;
     document.body.dataset.state = 'ready';
   }
 
@@ -471,6 +508,49 @@
     return `Request failed (${response.status}): ${text}`;
   }
 
+  /** Calls onMessage with each message of a streamed answer (newline-delimited JSON) as its line arrives. */
+  async function readMessages(response, onMessage) {
+    const reader = response.body.getReader();
+    const decoder = new TextDecoder();
+    let buffered = '';
+    for (;;) {
+      const { value, done } = await reader.read();
+      buffered += decoder.decode(value || new Uint8Array(), { stream: !done });
+      const lines = buffered.split('\n');
+      buffered = done ? '' : lines.pop();
+      lines.filter((line) => line.trim()).forEach((line) => onMessage(JSON.parse(line)));
+      if (done) return;
+    }
+  }
+
+  /** Plays a streamed motion as it arrives; resolves with the end message (throws on an error message). */
+  async function playStream(response, body) {
+    let motion = null;
+    let end = null;
+    await readMessages(response, (message) => {
+      if (message.type === 'start') {
+        motion = { fps: message.fps, joints: message.joints, parents: message.parents, model: message.model,
+          seed: message.seed, frames: [], segments: [], warnings: [] };
+      } else if (message.type === 'frames' && motion) {
+        if (motion.frames.length) {
+          appendFrames(message.frames);
+        } else {
+          motion.frames.push(...message.frames);
+          beginMotion(motion, { ...body, seed: motion.seed });
+        }
+      } else if (message.type === 'end' && motion && motion.frames.length) {
+        end = message;
+        finishMotion(message);
+      } else if (message.type === 'error') {
+        throw new Error(`${message.detail} (${message.status})`);
+      } else {
+        throw new Error(`the server answered with an unexpected stream message (${message.type})`);
+      }
+    });
+    if (!end) throw new Error('the answer ended before the whole motion arrived');
+    return end;
+  }
+
   async function postGenerate(body) {
     const headers = { 'Content-Type': 'application/json' };
     const key = ui.apiKey.value.trim();
@@ -493,19 +573,20 @@
     showWarnings([]);
     const started = performance.now();
     try {
-      const response = await postGenerate(body);
+      const response = await postGenerate({ ...body, stream: true });
       if (!response.ok) {
         showMessage(await describeFailure(response), 'error');
         document.body.dataset.state = 'error';
         return;
       }
-      const motion = await response.json();
-      loadMotion(motion, { ...body, seed: motion.seed });
-      showWarnings(motion.warnings);
+      const firstFrames = ((performance.now() - started) / 1000).toFixed(2); // sent with the first frames
+      const end = await playStream(response, body);
+      showWarnings(end.warnings);
       const seconds = ((performance.now() - started) / 1000).toFixed(2);
-      showMessage(`${motion.frames.length} frames (${(motion.frames.length / motion.fps).toFixed(1)} s of motion) ` +
-        `in ${seconds} s · seed ${motion.seed}`, 'ok');
+      showMessage(`${end.frame_count} frames (${(end.frame_count / end.fps).toFixed(1)} s of motion) in ${seconds} s, ` +
+        `first frames after ${firstFrames} s · seed ${end.seed}`, 'ok');
     } catch (err) {
+      state.streaming = false; // what arrived of a broken stream loops like a whole motion
       showMessage(`Could not generate: ${err.message}`, 'error');
       document.body.dataset.state = 'error';
     } finally {

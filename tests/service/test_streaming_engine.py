@@ -1,0 +1,171 @@
+"""Frames streamed while the codes are sampled, at the engine: the decoder's reach (measured on the graph when the
+bundle loads) against the bound its convolutions and upsamplings give, the bound itself (changing code t + ahead + 1
+leaves the frames of code t alone, changing code t + ahead does not), early frames equal to the whole decode, the
+same frames whatever shares the batch, and a failing frame sink that cannot fail the generation."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from t2m.service.engine.reach import DecoderReach
+from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+# onnxruntime picks its convolution kernels by sequence length, so a window decodes the same frames as the whole
+# motion up to ~1e-6 (measured: at most 2.9e-6 m on the default model's joints)
+STREAM_TOLERANCE_M = 1e-5
+
+
+def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
+    """The reach of a decoder graph computed from its nodes: per time position the first and last code it depends
+    on, through every Conv (kernel, dilation, pads, stride) and nearest Resize in graph order, as one chain (a
+    residual branch is the longer path, so the chain bounds it)."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import numpy_helper
+
+    graph = onnx.load(str(decoder_onnx)).graph
+    constants = {init.name: numpy_helper.to_array(init) for init in graph.initializer}
+    for node in graph.node:
+        if node.op_type == "Constant":
+            constants[node.output[0]] = numpy_helper.to_array(node.attribute[0].t)
+    first = last = np.arange(tokens)
+    for node in graph.node:
+        attributes = {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
+        if node.op_type == "Conv":
+            (kernel,), (dilation,) = attributes["kernel_shape"], attributes["dilations"]
+            (stride,) = attributes["strides"]
+            before, after = attributes["pads"]
+            length = (len(first) + before + after - dilation * (kernel - 1) - 1) // stride + 1
+            taps = np.arange(length)[:, None] * stride - before + np.arange(kernel)[None] * dilation
+            inside = (taps >= 0) & (taps < len(first))
+            clipped = np.clip(taps, 0, len(first) - 1)
+            first = np.where(inside, first[clipped], tokens).min(axis=1)
+            last = np.where(inside, last[clipped], -1).max(axis=1)
+        elif node.op_type == "Resize":
+            assert attributes["mode"] == b"nearest" and attributes["nearest_mode"] == b"floor"
+            factor = int(constants[node.input[2]][-1])
+            first, last = np.repeat(first, factor), np.repeat(last, factor)
+    per_token = len(first) // tokens
+    code = np.arange(len(first)) // per_token
+    middle = (code > tokens // 4) & (code < 3 * tokens // 4)   # clear of the zero padding at both ends
+    return DecoderReach(ahead=int((last - code)[middle].max()), behind=int((code - first)[middle].max()))
+
+
+@pytest.fixture(scope="module")
+def default_engine(default_model):
+    from t2m.service.engine.engine import OnnxEngine
+
+    return OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
+
+
+def _request(segments, seed: int = 3, guidance: float = 3.0, sink=None) -> GenerationRequest:
+    return GenerationRequest(segments=[SegmentRequest(text, duration) for text, duration in segments], seed=seed,
+                             guidance=guidance, on_frames=sink)
+
+
+def _streamed(engine, segments, seed: int = 3) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """(the early chunks, the streamed motion = early chunks + the rest of the Motion, the unstreamed joints)."""
+    chunks: list[np.ndarray] = []
+    motion = engine.generate(_request(segments, seed, sink=chunks.append))
+    early = sum(len(chunk) for chunk in chunks)
+    streamed = np.concatenate([*chunks, motion.joints[early:]])
+    return chunks, streamed, engine.generate(_request(segments, seed)).joints
+
+
+def test_the_default_decoder_reaches_22_codes_each_way_as_its_graph_says(default_engine, default_model):
+    """T2M-GPT's decoder: conv3, then per upsampling level dilated residual blocks (9, 3, 1) and x2 nearest, then
+    conv3 x2: a frame of code t depends on codes t - 22 .. t + 22."""
+    assert default_engine.reach == graph_reach(default_model / "decoder.onnx") == DecoderReach(ahead=22, behind=22)
+    assert default_engine.limits.details["streaming"] == {"early_frames": True, "lookahead_tokens": 22,
+                                                          "lookbehind_tokens": 22, "every_tokens": 8}
+
+
+def test_the_random_bundle_reach_is_its_graph_bound(onnx_engine, random_bundle):
+    assert onnx_engine.reach == graph_reach(random_bundle / "decoder.onnx")
+    assert onnx_engine.reach.ahead < 10   # one residual block per level: a short reach, many early frames
+
+
+def test_frames_of_code_t_are_final_once_codes_up_to_t_plus_ahead_exist(default_engine):
+    decode, ahead, per = default_engine.decoder.decode, default_engine.reach.ahead, 4
+    rng = np.random.default_rng(11)
+    codes = rng.integers(0, 512, 70)
+    whole = decode(codes)
+    t = 30
+    frames_of_t = slice(0, (t + 1) * per)
+    moved_at_reach = False
+    for replacement in rng.integers(0, 512, 4):
+        beyond, at = codes.copy(), codes.copy()
+        beyond[t + ahead + 1] = (codes[t + ahead + 1] + 1 + replacement) % 512
+        at[t + ahead] = (codes[t + ahead] + 1 + replacement) % 512
+        np.testing.assert_array_equal(decode(beyond)[frames_of_t], whole[frames_of_t])
+        moved_at_reach |= not np.array_equal(decode(at)[t * per:(t + 1) * per], whole[t * per:(t + 1) * per])
+    assert moved_at_reach, "the bound is not tight: code t + ahead never changes the frames of code t"
+    # so the codes up to t + ahead alone decode the frames up to code t
+    prefix = decode(codes[:t + ahead + 1])
+    assert np.abs(prefix[frames_of_t] - whole[frames_of_t]).max() < 1e-5
+
+
+@pytest.mark.parametrize("segments", [
+    [("a person walks forward", 10.0)],
+    [("a person walks forward", None), ("a person waves with the right hand", None)],
+    [("a person runs", 7.0), ("a person bows", 9.0), ("a person jumps", 2.0)],
+], ids=["one-10s", "two-free", "three"])
+def test_early_frames_and_the_rest_equal_the_unstreamed_motion(default_engine, segments):
+    chunks, streamed, whole = _streamed(default_engine, segments)
+    assert streamed.shape == whole.shape
+    assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
+    assert chunks, "nothing was sent before the whole decode"
+    assert len(chunks[0]) == 4   # the first final code goes out at once
+    assert all(len(chunk) % 4 == 0 for chunk in chunks)
+
+
+def test_a_10s_motion_sends_its_early_frames_in_doubling_chunks(default_engine):
+    """50 codes, reach 22: codes 0..27 can be final before the end. Sent: the first final code at once, then when at
+    least 8 codes and at least as many as sent before are newly final: at 1, 9 and 18 final codes (27 - 18 < 18)."""
+    chunks, _, _ = _streamed(default_engine, [("a person walks forward", 10.0)], seed=5)
+    assert [len(chunk) for chunk in chunks] == [4, 32, 36]
+
+
+def test_the_random_bundle_streams_equal_frames_too(onnx_engine):
+    chunks, streamed, whole = _streamed(onnx_engine, [("a person walks", 10.0), ("a person waves", None)], seed=8)
+    assert len(chunks) > 2
+    assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
+
+
+def test_a_streamed_request_gets_the_same_frames_alone_or_batched(default_engine):
+    segments = [("a person walks forward", 10.0)]
+    alone: list[np.ndarray] = []
+    batched: list[np.ndarray] = []
+    first = default_engine.generate_batch([_request(segments, 4, sink=alone.append)])[0]
+    results = default_engine.generate_batch([_request([("a person bows", 3.0)], 9),
+                                             _request(segments, 4, sink=batched.append),
+                                             _request([("a person runs", 8.0), ("a person sits", None)], 2)])
+    assert len(alone) == len(batched) > 1
+    for a, b in zip(alone, batched):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(results[1].joints, first.joints)
+
+
+def test_a_failing_frame_sink_does_not_fail_the_generation(default_engine):
+    calls = []
+
+    def broken(frames: np.ndarray) -> None:
+        calls.append(len(frames))
+        raise RuntimeError("the client went away")
+
+    motion = default_engine.generate(_request([("a person walks forward", 10.0)], 6, sink=broken))
+    assert calls == [4]   # one try, then the early frames stop
+    np.testing.assert_array_equal(motion.joints, default_engine.generate(_request([("a person walks forward", 10.0)],
+                                                                                  6)).joints)
+
+
+def test_the_masked_family_sends_its_frames_only_with_the_whole_motion(masked_bundle):
+    from t2m.service.engine.engine import OnnxEngine
+
+    engine = OnnxEngine.load(masked_bundle, intra_op_threads=1)
+    assert engine.reach is None
+    assert engine.limits.details["streaming"]["early_frames"] is False
+    chunks: list[np.ndarray] = []
+    motion = engine.generate(_request([("a person walks forward", 2.0)], guidance=4.0, sink=chunks.append))
+    assert chunks == [] and len(motion.joints) == 40
