@@ -141,6 +141,8 @@ FAMILY_FIELDS: dict[str, dict[str, tuple[Check, str]]] = {"gpt": MANIFEST_FIELDS
 OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
     "family": (lambda v: v in FAMILIES, f"one of {list(FAMILIES)}"),
     "masked.residual_temperature": (lambda v: _is_number(v) and v > 0, "null or a number > 0"),
+    "quantization.masked": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.residual": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
     "caption_index": (lambda v: v is None or isinstance(v, dict), "null or an object"),
     "caption_index.file": (lambda v: v == CAPTION_INDEX_FILE, f"'{CAPTION_INDEX_FILE}'"),
     "caption_index.count": POSITIVE,

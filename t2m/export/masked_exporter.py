@@ -8,7 +8,7 @@ PyTorch (logits, decoded features, identical tokens over a greedy full decode) i
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +26,9 @@ from t2m.export.onnx_masked import (
     joint_decoder_parity,
     length_parity,
     map_shape,
+    token_graph_int8_report,
     transformer_parity,
+    unit_conditions,
 )
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.length_estimator import LengthEstimator
@@ -36,7 +38,10 @@ from t2m.model.networks.vqvae import MotionVQVAE
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MaskedDecoding", "check_masked_models", "export_masked_bundle", "export_masked_from_runs"]
+__all__ = ["INT8_GRAPHS", "MaskedDecoding", "check_masked_models", "export_masked_bundle", "export_masked_from_runs"]
+
+# graphs that may be int8 (dynamic quantisation, 7-bit weights); the decoder and length graphs stay float32
+INT8_GRAPHS = ("text", "masked", "residual")
 
 
 @dataclass(frozen=True)
@@ -59,8 +64,7 @@ class MaskedExportChecks:
     int8: dict[str, Any] = field(default_factory=dict)
 
     def model_card_section(self) -> str:
-        int8 = ["## int8 dynamic quantisation (vs the float32 graphs)", "", text_int8_line(self.int8["text_encoder"]),
-                "- masked, residual, length and decoder graphs: float32", ""] if self.int8 else []
+        int8 = self._int8_lines()
         if not self.parity:
             return "\n".join(int8)
         p = self.parity
@@ -77,6 +81,29 @@ class MaskedExportChecks:
         lines += [f"- full greedy decode (maps {d['shape']}): tokens identical {d['tokens_identical']}"
                   f" ({d['differing_tokens']} differ)", ""]
         return "\n".join(lines + int8)
+
+    def _int8_lines(self) -> list[str]:
+        if not self.int8:
+            return []
+        lines = ["## int8 dynamic quantisation (vs the float32 graphs)", ""]
+        if "text_encoder" in self.int8:
+            lines.append(text_int8_line(self.int8["text_encoder"]))
+        for key in ("masked", "residual"):
+            if key in self.int8:
+                r = self.int8[key]
+                lines.append(f"- {key} transformer: max |logit diff| {r['max_abs_logit_diff']:.3f} (logits up to "
+                             f"{r['max_abs_logit']:.1f}); {r['fp32_ms']:.1f} -> {r['int8_ms']:.1f} ms per forward of a "
+                             f"guidance pair x {r['rows']} rows; {r['fp32_bytes'] / 1e6:.1f} -> "
+                             f"{r['int8_bytes'] / 1e6:.1f} MB")
+        if "decode" in self.int8:
+            d = self.int8["decode"]
+            total = int(np.prod(d["shape"]))
+            lines.append(f"- full greedy decode with the int8 graphs vs PyTorch (maps {d['shape']}, unit-norm text "
+                         f"features): {total - d['differing_tokens']} of {total} tokens identical")
+        float32 = [name for name in ("text encoder", "masked", "residual")
+                   if name.split()[0] not in self.int8 and f"{name.split()[0]}_encoder" not in self.int8]
+        lines += [f"- float32: {', '.join(float32 + ['decoder', 'length'])}", ""]
+        return lines
 
 
 def check_masked_models(vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
@@ -170,12 +197,18 @@ def export_masked_bundle(
     residual: ResidualTransformer | None, length: LengthEstimator | None, mean: np.ndarray, std: np.ndarray,
     text_source: TextSource, name: str, version: str, training_data: Mapping[str, str], license: str,
     decoding: MaskedDecoding = MaskedDecoding(), unconditional_branch: bool = True, notes: str = "",
-    check_parity: bool = True, int8_text: bool = False,
+    check_parity: bool = True, int8: frozenset[str] = frozenset(),
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """Export, check against PyTorch, write and verify a masked bundle; returns (manifest, checks).
 
-    ``int8_text`` quantises the text encoder after the float32 parity checks (as the GPT family's ``--int8 text``);
-    the token graphs stay float32."""
+    ``int8`` names graphs of INT8_GRAPHS to quantise after the float32 parity checks; each one's price is measured
+    (text: cosine to the float32 features; token graphs: logit difference, speed, and a greedy full decode with the
+    int8 graphs against PyTorch)."""
+    unknown = set(int8) - set(INT8_GRAPHS)
+    if unknown:
+        raise ValueError(f"int8: {', '.join(sorted(unknown))} not among {', '.join(INT8_GRAPHS)}")
+    if "residual" in int8 and residual is None:
+        raise ValueError("int8: 'residual' given but there is no residual transformer")
     check_masked_models(vq, masked, residual, length)
     for key, value in (("top_k", decoding.top_k), ("residual_top_k", decoding.residual_top_k)):
         if value is not None and not 1 <= value <= masked.config.codebook_size:
@@ -222,17 +255,38 @@ def export_masked_bundle(
     if check_parity:
         log.info("checking onnxruntime against PyTorch (float32)")
         checks.parity = _parity(out_dir, vq, masked, residual, length, text_source, mean, std, decoding)
-    if int8_text:
-        from t2m.export.quantize import text_int8_report
-
-        checks.int8["text_encoder"] = quantize_in_place(
-            out_dir / "text_encoder.onnx",
-            lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
-        manifest["quantization"]["text_encoder"] = INT8_LABEL
+    _quantize(out_dir, int8, masked, residual, manifest, checks, decoding)
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_masked_model_card(manifest, card_notes), encoding="utf-8")
     names += ["decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md"]
     return write_bundle(out_dir, {name: out_dir / name for name in names}, manifest), checks
+
+
+def _token_graph_report(model: MaskedTransformer | ResidualTransformer) -> Callable[[Path, Path], dict[str, Any]]:
+    return lambda fp32, int8: asdict(token_graph_int8_report(model, fp32, int8))
+
+
+def _quantize(out_dir: Path, int8: frozenset[str], masked: MaskedTransformer, residual: ResidualTransformer | None,
+              manifest: dict[str, Any], checks: MaskedExportChecks, decoding: MaskedDecoding) -> None:
+    """Replace the chosen graphs by int8 ones, measuring each against its float32 export."""
+    from t2m.export.quantize import text_int8_report
+
+    if "text" in int8:
+        checks.int8["text_encoder"] = quantize_in_place(
+            out_dir / "text_encoder.onnx",
+            lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
+        manifest["quantization"]["text_encoder"] = INT8_LABEL
+    models: dict[str, MaskedTransformer | ResidualTransformer | None] = {"masked": masked, "residual": residual}
+    for key, model in models.items():
+        if key in int8 and model is not None:
+            checks.int8[key] = quantize_in_place(out_dir / f"{key}.onnx", _token_graph_report(model))
+            manifest["quantization"][key] = INT8_LABEL
+    if {"masked", "residual"} & int8:
+        rows = masked.config.max_tokens
+        checks.int8["decode"] = asdict(decode_parity(
+            masked, residual, out_dir / "masked.onnx", None if residual is None else out_dir / "residual.onnx",
+            [rows, rows // 2, min(rows, 10)], steps=decoding.steps, guidance=decoding.guidance,
+            residual_guidance=decoding.residual_guidance, cond=unit_conditions(3, masked.config.text_dim)))
 
 
 # ------------------------------------------------------------------------------------------- from our runs
@@ -260,7 +314,7 @@ def export_masked_from_runs(
     length_run: str | Path | None = None, name: str | None = None, version: str = "0.1.0",
     model_card: str | Path | None = None, data_summary: str | Path | None = None,
     decoding: MaskedDecoding = MaskedDecoding(), check_parity: bool = True, text_source: TextSource | None = None,
-    int8_text: bool = False,
+    int8: frozenset[str] = frozenset(),
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """A verified masked bundle from a joint_vq (or 1D vq) run, a masked run, a residual run (when the VQ has more
     than one layer) and an optional length run. ``text_source`` replaces building the run's text encoder (tests)."""
@@ -304,4 +358,4 @@ def export_masked_from_runs(
         out_dir, vq=vq, masked=masked, residual=residual, length=length, mean=mean, std=std, text_source=text_source,
         name=name or f"t2m-{training_data['name']}-masked-{kind}", version=version, training_data=training_data,
         license=training_data["license"], decoding=decoding, unconditional_branch=cond_drop > 0, notes=notes,
-        check_parity=check_parity, int8_text=int8_text)
+        check_parity=check_parity, int8=int8)

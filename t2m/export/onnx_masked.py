@@ -218,20 +218,66 @@ class DecodeParity:
 
 def decode_parity(masked: MaskedTransformer, residual: ResidualTransformer | None, masked_path: str | Path,
                   residual_path: str | Path | None, length: list[int], steps: int = 10, guidance: float = 4.0,
-                  residual_guidance: float = 5.0, seed: int = 0) -> DecodeParity:
+                  residual_guidance: float = 5.0, seed: int = 0, cond: torch.Tensor | None = None) -> DecodeParity:
     """The shared decoding loop (t2m.decoding.masked) over the modules and over the graphs: greedy (top-k 1), so any
     token that differs is a difference in the graphs' logits, not in random draws. No residual model (a single-layer
-    VQ): the mask stage only."""
+    VQ): the mask stage only. ``cond`` replaces the random text features (e.g. unit_conditions for MiniLM)."""
     residual_graph = None
     if residual is not None:
         if residual_path is None:
             raise ValueError("decode_parity: a residual model needs its residual.onnx")
         residual_graph = OnnxResidualStep(ort_session(residual_path), residual.config.residual_layers, residual.pad_id)
     graphs = (OnnxMaskedStep(ort_session(masked_path), masked.config.columns, masked.config.mask_id), residual_graph)
-    cond = torch.randn(len(length), masked.config.text_dim, generator=torch.Generator().manual_seed(seed))
+    if cond is None:
+        cond = torch.randn(len(length), masked.config.text_dim, generator=torch.Generator().manual_seed(seed))
     results = [generate_token_maps(m, r, cond, length, steps=steps, guidance=guidance,
                                    residual_guidance=residual_guidance, greedy=True)
                for m, r in ((masked, residual), graphs)]
     expected, actual = results
     differing = int((expected != actual).sum())
     return DecodeParity(tuple(actual.shape), differing == 0, differing)
+
+
+# --- int8 -------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TokenGraphInt8Report:
+    """What int8 weights cost one token graph (masked.onnx or residual.onnx) against its float32 export."""
+
+    max_abs_logit_diff: float       # on random inputs, real rows only
+    max_abs_logit: float            # the float32 logits' scale, to read the difference against
+    fp32_ms: float                  # one forward at batch 2 (a guidance pair) x `rows` rows
+    int8_ms: float
+    rows: int
+    fp32_bytes: int
+    int8_bytes: int
+
+
+def token_graph_int8_report(model: MaskedTransformer | ResidualTransformer, fp32_path: str | Path,
+                            int8_path: str | Path, repeats: int = 5, seed: int = 0) -> TokenGraphInt8Report:
+    """Logit difference and speed of an int8 token graph vs its float32 export, at the model's longest map."""
+    import time
+
+    rows = model.config.max_tokens
+    inputs = {k: v.numpy() for k, v in example_inputs(model.eval(), 2, rows, seed).items()}
+    outputs, times = [], []
+    for path in (fp32_path, int8_path):
+        session = ort_session(path)
+        session.run(None, inputs)
+        start = time.perf_counter()
+        for _ in range(repeats):
+            (logits,) = session.run(None, inputs)
+        times.append((time.perf_counter() - start) / repeats)
+        outputs.append(_real_rows(logits, torch.from_numpy(inputs["length"])))
+    fp32, int8 = outputs
+    return TokenGraphInt8Report(
+        max_abs_logit_diff=float(np.abs(fp32 - int8).max()), max_abs_logit=float(np.abs(fp32).max()),
+        fp32_ms=1000 * times[0], int8_ms=1000 * times[1], rows=rows,
+        fp32_bytes=Path(fp32_path).stat().st_size, int8_bytes=Path(int8_path).stat().st_size)
+
+
+def unit_conditions(count: int, dim: int, seed: int = 0) -> torch.Tensor:
+    """Random L2-normalised text features: where a normalised encoder's (MiniLM's) features live."""
+    cond = torch.randn(count, dim, generator=torch.Generator().manual_seed(seed))
+    return cond / cond.norm(dim=1, keepdim=True)

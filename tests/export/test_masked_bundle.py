@@ -16,6 +16,8 @@ from onnx import TensorProto, helper
 
 from t2m.bundle import BundleError, read_manifest, required_files
 from t2m.export.verify import verify_bundle
+from t2m.service.engine.engine import OnnxEngine
+from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
 
 @pytest.fixture(autouse=True)
@@ -216,13 +218,18 @@ def test_int8_text_encoder_for_the_masked_family(masked_runs, tmp_path, tiny_tex
 
     out = tmp_path / "bundle"
     code = main(["export", "--family", "masked", "--vq", str(masked_runs["joint_vq"]), "--masked",
-                 str(masked_runs["masked"]), "--residual", str(masked_runs["residual"]), "--int8", "text",
+                 str(masked_runs["masked"]), "--residual", str(masked_runs["residual"]), "--int8", "text,residual",
                  "-o", str(out)])
     assert code == 0
     manifest = verify_bundle(out)
-    assert manifest["quantization"]["text_encoder"] == "int8-dynamic"
+    assert manifest["quantization"] == {"text_encoder": "int8-dynamic", "residual": "int8-dynamic"}
     card = (out / "MODEL_CARD.md").read_text()
     assert "- text encoder: cosine to float32 features min" in card and "tokens identical True" in card
+    assert "- residual transformer: max |logit diff|" in card and "- float32: masked, decoder, length" in card
+    assert "- full greedy decode with the int8 graphs vs PyTorch" in card
+    engine = OnnxEngine.load(out)  # the int8 bundle serves
+    motion = engine.generate(GenerationRequest([SegmentRequest("a person walks", 1.0)], seed=1, guidance=2.0))
+    assert motion.joints.shape[0] == 20 and np.isfinite(motion.joints).all()
     assert '"int8"' in capsys.readouterr().out
 
 
@@ -232,7 +239,8 @@ def test_int8_text_encoder_for_the_masked_family(masked_runs, tmp_path, tiny_tex
     ([], "--gpt RUN is required"),
     (["--family", "masked", "--masked", "{masked}", "--gpt", "{masked}"], "--gpt: only with --family gpt"),
     (["--family", "masked", "--masked", "{masked}", "--steps", "0"], "--steps must be >= 1"),
-    (["--family", "masked", "--masked", "{masked}", "--int8", "gpt"], "--int8 gpt: only 'none' or 'text'"),
+    (["--family", "masked", "--masked", "{masked}", "--int8", "gpt"], "--int8 gpt: give none, all, or some of masked"),
+    (["--int8", "masked"], "--int8 masked: give none, all, or some of gpt, text"),
 ])
 def test_wrong_export_arguments_are_one_line(masked_runs, tmp_path, capsys, args, message):
     from t2m.cli.main import main

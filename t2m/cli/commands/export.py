@@ -32,9 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--text-encoder", choices=("minilm", "clip"), default=None,
                         help="text encoder (default: the one the GPT run was trained with)")
     parser.add_argument("--clip-weights", type=Path, default=None, metavar="PATH", help="local CLIP ViT-B/32 weights")
-    parser.add_argument("--int8", choices=("none", "text", "gpt", "all"), default="none",
-                        help="int8 dynamic quantisation of the text encoder and/or GPT step graph (default none; "
-                             "family masked: none or text)")
+    parser.add_argument("--int8", default="none", metavar="GRAPHS",
+                        help="int8 dynamic quantisation: none (default), all, or the graphs comma-separated; family "
+                             "gpt: text or gpt; family masked: text, masked, residual")
     parser.add_argument("--name", default=None, help="bundle name (default t2m-<data>-<text encoder>)")
     parser.add_argument("--version", default="0.1.0", help="bundle version (default 0.1.0)")
     parser.add_argument("--model-card", type=Path, default=None, metavar="FILE",
@@ -55,7 +55,14 @@ _MASKED_ONLY = ("masked", "residual", "length")
 def _check_family_arguments(args: argparse.Namespace) -> None:
     from t2m.cli.main import CliError
 
+    graphs = set(args.int8.split(",")) - {"none", "all"}
+    allowed = {"text", "gpt"} if args.family == "gpt" else {"text", "masked", "residual"}
+    if args.int8 not in ("none", "all") and (not graphs or not graphs <= allowed):
+        raise CliError(f"--int8 {args.int8}: give none, all, or some of {', '.join(sorted(allowed))} "
+                       f"(comma-separated) for --family {args.family}")
     if args.family == "gpt":
+        if len(graphs) > 1:
+            args.int8 = "all"
         given = [f"--{name}" for name in _MASKED_ONLY if getattr(args, name) is not None]
         if given:
             raise CliError(f"{', '.join(given)}: only with --family masked")
@@ -66,14 +73,19 @@ def _check_family_arguments(args: argparse.Namespace) -> None:
         raise CliError("--family masked needs --masked RUN")
     if args.gpt is not None:
         raise CliError("--gpt: only with --family gpt")
-    if args.int8 not in ("none", "text"):
-        raise CliError(f"--int8 {args.int8}: only 'none' or 'text' for --family masked (its token graphs stay "
-                       "float32)")
     if args.steps < 1:
         raise CliError(f"--steps must be >= 1, got {args.steps}")
     for flag, value in (("--guidance", args.guidance), ("--residual-guidance", args.residual_guidance)):
         if value is not None and value < 0:
             raise CliError(f"{flag} must be >= 0, got {value}")
+
+
+def _masked_int8(value: str) -> frozenset[str]:
+    from t2m.export.masked_exporter import INT8_GRAPHS
+
+    if value == "none":
+        return frozenset()
+    return frozenset(INT8_GRAPHS) if value == "all" else frozenset(value.split(","))
 
 
 def _run_masked(args: argparse.Namespace) -> int:
@@ -84,7 +96,7 @@ def _run_masked(args: argparse.Namespace) -> int:
     manifest, checks = export_masked_from_runs(
         args.vq, args.masked, args.output, residual_run=args.residual, length_run=args.length, name=args.name,
         version=args.version, model_card=args.model_card, data_summary=args.data_summary, decoding=decoding,
-        check_parity=not args.skip_parity, int8_text=args.int8 == "text")
+        check_parity=not args.skip_parity, int8=_masked_int8(args.int8))
     print(json.dumps({"parity": checks.parity, "int8": checks.int8}, indent=2))
     total = sum(entry["bytes"] for entry in manifest["files"].values())
     print(f"bundle {manifest['name']} {manifest['version']} written to {args.output} ({total / 1e6:.1f} MB, verified)")
