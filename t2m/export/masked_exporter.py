@@ -283,13 +283,13 @@ def export_masked_bundle(
     export_joint_decoder(vq, mean, std, out_dir / "decoder.onnx")
     np.save(out_dir / "mean.npy", np.asarray(mean, dtype=np.float32))
     np.save(out_dir / "std.npy", np.asarray(std, dtype=np.float32))
-    columns, layers = map_shape(vq)
+    layers = map_shape(vq)[1]
     c = masked.config
     manifest: dict[str, Any] = {
         "format_version": 1, "family": "masked", "name": name, "version": version,
         **motion_fields(vq.config.feat_dim, vq.config.frames_per_token, c.max_tokens),
         "codebook_size": c.codebook_size, "residual_layers": layers,
-        "masked": {"columns": columns, "steps": decoding.steps, "guidance": float(decoding.guidance),
+        "masked": {"columns": c.columns, "steps": decoding.steps, "guidance": float(decoding.guidance),
                    "residual_guidance": float(decoding.residual_guidance), "top_k": decoding.top_k,
                    "residual_top_k": decoding.residual_top_k, "mask_id": c.mask_id,
                    "pad_id": c.codebook_size if residual is None else residual.pad_id,

@@ -2,10 +2,10 @@
 stage, seeds that do not depend on the batch, residual layers, and the same tokens through modules and graphs."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
-
-from dataclasses import replace
 
 from t2m.decoding.masked import MaskedJob, remask_counts, sample_branch_maps, sample_token_maps
 
