@@ -157,11 +157,8 @@ BRANCH_FIELDS: dict[str, tuple[Check, str]] = {
     "name": (lambda v: isinstance(v, str) and v.isidentifier() and v.islower(), "a lower-case identifier"),
     "columns": POSITIVE,
     "codebook_size": POSITIVE,
-    "top_k": _TOP_K,
-    "residual_top_k": _TOP_K,
-    "mask_id": (_is_int, "an integer"),
-    "pad_id": (_is_int, "an integer"),
-    "residual_mask_class": (_is_bool, "true or false"),
+    **{field: MASKED_FIELDS[f"masked.{field}"] for field in ("top_k", "residual_top_k", "mask_id", "pad_id")},
+    "residual_mask_class": OPTIONAL_FIELDS["masked.residual_mask_class"],
 }
 _MISSING = object()
 

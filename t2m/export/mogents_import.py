@@ -19,7 +19,6 @@ release's values, as for MoMask.
 """
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,10 +27,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from t2m.export.exporter import clip_text_source
 from t2m.export.masked_exporter import MaskedDecoding, MaskedExportChecks, TokenBranch, export_masked_bundle
 from t2m.export.mogents_files import locate_release, read_states
-from t2m.export.momask_files import MomaskFiles, kit_fps_note, read_stat
+from t2m.export.momask_files import MomaskFiles, read_stat
 from t2m.export.momask_import import (
     RELEASE_HEADS,
     RELEASE_RESIDUAL_GUIDANCE,
@@ -40,6 +38,7 @@ from t2m.export.momask_import import (
     load_length,
     load_strict,
     read_positions,
+    read_release,
     release_top_k,
     require_tensor,
     shape_text,
@@ -50,8 +49,6 @@ from t2m.model.networks.fused_vqvae import FusedVQConfig, FusedVQVAE
 from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer
 from t2m.model.networks.residual_transformer import ResidualTransformer
-
-log = logging.getLogger(__name__)
 
 __all__ = ["ImportedMogents", "import_mogents", "load_mogents", "release_decoding"]
 
@@ -194,14 +191,9 @@ def import_mogents(
     """The whole import: the release's files -> our modules -> a verified masked bundle with two generators."""
     from t2m.export.mogents_card import release_notes
 
-    if clip_weights is None:
-        raise ValueError(CLIP_REQUIRED)
     located = locate_release(logs_dir, files or {})
-    text_source = clip_text_source(clip_weights)  # a wrong CLIP file is refused before the slow checkpoint loads
-    models = load_mogents(located, heads, allow_pickle)
-    for note in (located.missing_length_note(), kit_fps_note(located.dataset)):
-        if note:
-            log.warning("%s", note)
+    text_source, models = read_release(clip_weights, CLIP_REQUIRED, located,
+                                       lambda: load_mogents(located, heads, allow_pickle))
     decoding, (aux_top_k, aux_residual_top_k) = release_decoding(models.vq)
     aux = TokenBranch("aux", models.masked_aux, models.residual_aux, aux_top_k, aux_residual_top_k)
     notes, training_data, license = release_notes(models, decoding, heads)

@@ -19,14 +19,14 @@ from __future__ import annotations
 import logging
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from torch import nn
 
-from t2m.export.exporter import clip_text_source
+from t2m.export.exporter import TextSource, clip_text_source
 from t2m.export.masked_exporter import MaskedDecoding, MaskedExportChecks, export_masked_bundle
 from t2m.export.momask_card import release_notes
 from t2m.export.momask_files import (
@@ -218,6 +218,23 @@ def load_momask(files: MomaskFiles, heads: int = RELEASE_HEADS, allow_pickle: bo
     return ImportedMomask(files, vq, masked, residual, length, mean, std, keys)
 
 
+ModelsT = TypeVar("ModelsT")
+
+
+def read_release(clip_weights: str | Path | None, clip_required: str, located: MomaskFiles,
+                 load: Callable[[], ModelsT]) -> tuple[TextSource, ModelsT]:
+    """What every release import does first: the CLIP file (refused before the slow checkpoint loads), the models,
+    one warning line per gap of the release (no length estimator, KIT's frame rate)."""
+    if clip_weights is None:
+        raise ValueError(clip_required)
+    text_source = clip_text_source(clip_weights)
+    models = load()
+    for note in (located.missing_length_note(), kit_fps_note(located.dataset)):
+        if note:
+            log.warning("%s", note)
+    return text_source, models
+
+
 def import_momask(
     checkpoints_dir: str | Path | None,
     out_dir: str | Path,
@@ -231,14 +248,9 @@ def import_momask(
     allow_pickle: bool = False,
 ) -> tuple[dict, MaskedExportChecks]:
     """The whole import: the release's files -> our modules -> a verified masked bundle with the release's settings."""
-    if clip_weights is None:
-        raise ValueError(CLIP_REQUIRED)
     located = locate_release(checkpoints_dir, files or {})
-    text_source = clip_text_source(clip_weights)  # a wrong CLIP file is refused before the slow checkpoint loads
-    models = load_momask(located, heads, allow_pickle)
-    for note in (located.missing_length_note(), kit_fps_note(located.dataset)):
-        if note:
-            log.warning("%s", note)
+    text_source, models = read_release(clip_weights, CLIP_REQUIRED, located,
+                                       lambda: load_momask(located, heads, allow_pickle))
     decoding = release_decoding(located.dataset, models.vq.config.nb_code)
     notes, training_data, license = release_notes(models, decoding, heads)
     default_name = "momask-" + ("kit" if located.dataset == "KIT-ML" else "humanml3d")
