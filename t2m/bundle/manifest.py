@@ -237,7 +237,7 @@ def _check_branches(manifest: Mapping[str, Any]) -> None:
         if not isinstance(branch, Mapping):
             raise BundleError(f"{MANIFEST_NAME}: field '{where}' must be an object, got {branch!r}")
         for field, (check, expected) in BRANCH_FIELDS.items():
-            value = _lookup(branch, field, _MISSING)
+            value = branch.get(field, _MISSING)
             if value is _MISSING:
                 raise BundleError(f"{MANIFEST_NAME}: missing field '{where}.{field}'")
             if not check(value):

@@ -11,6 +11,7 @@ import dataclasses
 import io
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -319,6 +320,24 @@ def test_cli_import_gives_a_verified_two_branch_bundle(imported):
         assert text in card, text
 
 
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda m: m["branches"][0].update(pad_id=33), "field 'masked.branches.0.pad_id' is 33, expected codebook_size 32"),
+    (lambda m: m.update(pad_id=24), "field 'masked.pad_id' is 24, expected codebook_size + 1 (residual_mask_class) 25"),
+    (lambda m: m["branches"][0].pop("columns"), "missing field 'masked.branches.0.columns'"),
+    (lambda m: m["branches"][0].update(name="masked"), "field 'masked.branches.0.name' 'masked' is used twice"),
+    (lambda m: m.update(temperature=0), "field 'masked.temperature' must be null or a number > 0"),
+])
+def test_the_manifest_contract_checks_the_branches(imported, edit, message):
+    from t2m.bundle import BundleError, check_manifest_fields, required_files
+
+    raw = json.loads((imported[0] / "manifest.json").read_text())
+    check_manifest_fields(raw)
+    assert {"masked_aux.onnx", "residual_aux.onnx"} <= set(required_files(raw))
+    edit(raw["masked"])
+    with pytest.raises(BundleError, match=re.escape(message)):
+        check_manifest_fields(raw)
+
+
 def test_the_bundles_graphs_compute_mogents_logits(release, imported):
     expected = reference_logits(release, logit_inputs(release.sizes))
     diffs = compare(graph_logits(imported[0], release), expected)
@@ -475,10 +494,13 @@ def test_full_release_sizes_match_the_reference(tmp_path, clip_archive, capsys):
     lengths = [49, 37, 1]
     served, conds = served_token_maps(out, lengths)
     maps = reference_token_maps(release, conds, lengths)
-    for rows, got, want in zip(lengths, served, maps):
-        np.testing.assert_array_equal(got, want, err_msg=f"length {rows}")
+    differing = [int((got != want).sum()) for got, want in zip(served, maps)]
     decode = check_decode(release, out, maps)
     with capsys.disabled():
         print(f"\nreleased sizes: max |logit| {scales(expected)}; max |diff| module logits {modules}, graph logits "
-              f"{graphs}, decoded features {decode:.2e}")
+              f"{graphs}, decoded features {decode:.2e}; differing tokens per map {differing} of "
+              f"{[m.size for m in maps]}")
     assert within(modules, scales(expected)) and within(graphs, scales(expected)) and decode <= 1e-4
+    # random 24-layer stacks at full width leave some guided logits within float rounding of each other: a rare
+    # token may go either way (the card's "ties"); more than one in a thousand would be a real difference
+    assert sum(differing) * 1000 <= sum(m.size for m in maps), differing
