@@ -10,7 +10,7 @@ from pathlib import Path
 from torch import nn
 
 from t2m.export.masked_exporter import MaskedDecoding
-from t2m.export.mogents_import import DEMO_STEPS, ImportedMogents
+from t2m.export.mogents_files import DEMO_STEPS, ImportedMogents
 from t2m.export.momask_files import kit_fps_note
 from t2m.export.momask_import import release_top_k
 

@@ -18,17 +18,24 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from t2m.export.momask_files import MomaskFiles, release_files
 from t2m.export.t2m_gpt_import import load_checkpoint_entries
+from t2m.model.networks.fused_vqvae import FusedVQVAE
+from t2m.model.networks.length_estimator import LengthEstimator
+from t2m.model.networks.masked_transformer import MaskedTransformer
+from t2m.model.networks.residual_transformer import ResidualTransformer
 
 VQ_DIR = "pretrain_vq"
 MASKED_DIR = "pretrain_mtrans"
 RESIDUAL_DIR = "pretrain_rtrans"
 KIT_SUFFIX = "_kit"
+DEMO_STEPS = 18              # the --time_steps default MoGenTS's demo runs with (its evaluation: 10)
 # top-level keys, per model of each file, in the order they are tried (best-FID file first, then latest.tar)
 ENTRY_KEYS = {
     "vq": (("vq_model", "net"),),
@@ -84,3 +91,19 @@ def read_states(path: Path, role: str, allow_pickle: bool = False) -> list[tuple
     key found, its tensors in float32 without ``clip_model.*``)."""
     return [(key, {k: v for k, v in state.items() if not k.startswith("clip_model.")})
             for key, state in load_checkpoint_entries(path, ENTRY_KEYS[role], allow_pickle)]
+
+
+@dataclass
+class ImportedMogents:
+    """The release as our modules (eval mode), the de-normalisation and the top-level keys read."""
+
+    files: MomaskFiles
+    vq: FusedVQVAE
+    masked: MaskedTransformer         # ts (2D)
+    residual: ResidualTransformer     # ts (2D)
+    masked_aux: MaskedTransformer     # aux (1D)
+    residual_aux: ResidualTransformer
+    length: LengthEstimator | None
+    mean: np.ndarray
+    std: np.ndarray
+    keys: dict[str, str]

@@ -20,15 +20,14 @@ release's values, as for MoMask.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from t2m.export.masked_exporter import MaskedDecoding, MaskedExportChecks, TokenBranch, export_masked_bundle
-from t2m.export.mogents_files import locate_release, read_states
+from t2m.export.mogents_card import release_notes
+from t2m.export.mogents_files import ImportedMogents, locate_release, read_states
 from t2m.export.momask_files import MomaskFiles, read_stat
 from t2m.export.momask_import import (
     RELEASE_HEADS,
@@ -46,7 +45,6 @@ from t2m.export.momask_import import (
 )
 from t2m.export.t2m_gpt_import import RELEASE_DILATION_GROWTH
 from t2m.model.networks.fused_vqvae import FusedVQConfig, FusedVQVAE
-from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer
 from t2m.model.networks.residual_transformer import ResidualTransformer
 
@@ -54,25 +52,8 @@ __all__ = ["ImportedMogents", "import_mogents", "load_mogents", "release_decodin
 
 RELEASE = "MoGenTS"
 RELEASE_GUIDANCE = 4.0       # README's evaluation commands, HumanML3D and KIT-ML: --cond_scale 4
-DEMO_STEPS = 18              # the --time_steps default the demo runs with (the evaluation: 10)
 CLIP_REQUIRED = ("a MoGenTS import needs CLIP ViT-B/32 weights for its text encoder: pass --clip ViT-B-32.pt "
                  "(OpenAI's file, as clip.load downloads it)")
-
-
-@dataclass
-class ImportedMogents:
-    """The release as our modules (eval mode), the de-normalisation and the top-level keys read."""
-
-    files: MomaskFiles
-    vq: FusedVQVAE
-    masked: MaskedTransformer         # ts (2D)
-    residual: ResidualTransformer     # ts (2D)
-    masked_aux: MaskedTransformer     # aux (1D)
-    residual_aux: ResidualTransformer
-    length: LengthEstimator | None
-    mean: np.ndarray
-    std: np.ndarray
-    keys: dict[str, str]
 
 
 def release_decoding(vq: FusedVQVAE) -> tuple[MaskedDecoding, tuple[int, int]]:
@@ -189,8 +170,6 @@ def import_mogents(
     allow_pickle: bool = False,
 ) -> tuple[dict, MaskedExportChecks]:
     """The whole import: the release's files -> our modules -> a verified masked bundle with two generators."""
-    from t2m.export.mogents_card import release_notes
-
     located = locate_release(logs_dir, files or {})
     text_source, models = read_release(clip_weights, CLIP_REQUIRED, located,
                                        lambda: load_mogents(located, heads, allow_pickle))
