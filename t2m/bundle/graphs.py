@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from t2m.bundle.errors import BundleError
+from t2m.bundle.manifest import branch_graphs
 
 __all__ = ["DeclaredTensor", "GraphSpec", "TensorSpec", "check_graph_io", "expected_graphs"]
 
@@ -48,25 +49,38 @@ def _text_graph(manifest: Mapping[str, Any]) -> GraphSpec:
         outputs=(TensorSpec("text_features", FLOAT32, (None, dim)),))
 
 
-def _masked_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
-    """masked.onnx, residual.onnx (R > 1), decoder.onnx over [B, T, C, R] maps, length.onnx (with an estimator)."""
-    masked, dim = manifest["masked"], manifest["text_encoder"]["dim"]
-    columns, layers, size = masked["columns"], manifest["residual_layers"], manifest["codebook_size"]
-    cond, length = TensorSpec("cond", FLOAT32, (None, dim)), TensorSpec("length", INT64, (None,))
-    graphs = {
-        "text_encoder.onnx": _text_graph(manifest),
-        "masked.onnx": GraphSpec(
-            inputs=(TensorSpec("tokens", INT64, (None, None, columns)), cond, length),
-            outputs=(TensorSpec("logits", FLOAT32, (None, None, columns, size)),)),
-    }
+def _token_graphs(files: tuple[str, str], block: Mapping[str, Any], size: int, layers: int,
+                  cond: TensorSpec, length: TensorSpec) -> dict[str, GraphSpec]:
+    """One generator's masked graph and (R > 1) residual graph: K logits, and K + 1 (K + 2 with the mask class)."""
+    columns = block["columns"]
+    graphs = {files[0]: GraphSpec(
+        inputs=(TensorSpec("tokens", INT64, (None, None, columns)), cond, length),
+        outputs=(TensorSpec("logits", FLOAT32, (None, None, columns, size)),))}
     if layers > 1:
-        graphs["residual.onnx"] = GraphSpec(
+        classes = size + 1 + int(bool(block.get("residual_mask_class")))
+        graphs[files[1]] = GraphSpec(
             inputs=(TensorSpec("codes", INT64, (None, None, columns, layers)), TensorSpec("layer", INT64, (None,)),
                     cond, length),
-            outputs=(TensorSpec("logits", FLOAT32, (None, None, columns, size + 1)),))
+            outputs=(TensorSpec("logits", FLOAT32, (None, None, columns, classes)),))
+    return graphs
+
+
+def _masked_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
+    """masked.onnx, residual.onnx (R > 1), each branch's pair, decoder.onnx over [B, T, C, R] maps (C: the primary
+    columns plus every branch's), length.onnx (with an estimator)."""
+    masked, dim = manifest["masked"], manifest["text_encoder"]["dim"]
+    layers, branches = manifest["residual_layers"], masked.get("branches") or []
+    cond, length = TensorSpec("cond", FLOAT32, (None, dim)), TensorSpec("length", INT64, (None,))
+    graphs = {"text_encoder.onnx": _text_graph(manifest),
+              **_token_graphs(("masked.onnx", "residual.onnx"), masked, manifest["codebook_size"], layers, cond,
+                              length)}
+    for branch in branches:
+        graphs.update(_token_graphs(branch_graphs(branch["name"]), branch, branch["codebook_size"], layers, cond,
+                                    length))
     if masked["length_estimator"]:
         graphs["length.onnx"] = GraphSpec(
             inputs=(cond,), outputs=(TensorSpec("logits", FLOAT32, (None, manifest["max_tokens"] + 1)),))
+    columns = masked["columns"] + sum(branch["columns"] for branch in branches)
     graphs["decoder.onnx"] = GraphSpec(
         inputs=(TensorSpec("codes", INT64, (None, None, columns, layers)),),
         outputs=(TensorSpec("features", FLOAT32, (None, None, manifest["feature_dim"])),))

@@ -19,6 +19,7 @@ from typing import Any
 from t2m.bundle.errors import BundleError
 
 __all__ = [
+    "BRANCH_FIELDS",
     "FAMILIES",
     "FAMILY_FIELDS",
     "FORMAT_VERSION",
@@ -28,10 +29,12 @@ __all__ = [
     "MASKED_FIELDS",
     "OPTIONAL_FILES",
     "REQUIRED_FILES",
+    "BranchSettings",
     "CaptionIndexInfo",
     "GptSettings",
     "Manifest",
     "MaskedSettings",
+    "branch_graphs",
     "check_manifest_fields",
     "family_of",
     "parse_manifest",
@@ -143,12 +146,28 @@ OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
     "masked.residual_temperature": (lambda v: _is_number(v) and v > 0, "null or a number > 0"),
     "quantization.masked": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
     "quantization.residual": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "masked.temperature": (lambda v: _is_number(v) and v > 0, "null or a number > 0"),
+    "masked.residual_mask_class": (_is_bool, "true or false"),
+    "masked.branches": (lambda v: isinstance(v, list), "a list of branch objects"),
     "caption_index": (lambda v: v is None or isinstance(v, dict), "null or an object"),
     "caption_index.file": (lambda v: v == CAPTION_INDEX_FILE, f"'{CAPTION_INDEX_FILE}'"),
     "caption_index.count": POSITIVE,
     "caption_index.threshold": (lambda v: _is_number(v) and -1 <= v <= 1, "a cosine similarity in [-1, 1]"),
 }
+# the optional `masked.branches` list (MoGenTS: its 1D "aux" tokens beside the 2D map): each entry's fields
+BRANCH_FIELDS: dict[str, tuple[Check, str]] = {
+    "name": (lambda v: isinstance(v, str) and v.isidentifier() and v.islower(), "a lower-case identifier"),
+    "columns": POSITIVE,
+    "codebook_size": POSITIVE,
+    **{field: MASKED_FIELDS[f"masked.{field}"] for field in ("top_k", "residual_top_k", "mask_id", "pad_id")},
+    "residual_mask_class": OPTIONAL_FIELDS["masked.residual_mask_class"],
+}
 _MISSING = object()
+
+
+def branch_graphs(name: str) -> tuple[str, str]:
+    """(masked graph, residual graph) file names of a `masked.branches` entry."""
+    return f"masked_{name}.onnx", f"residual_{name}.onnx"
 
 
 def _lookup(manifest: Mapping[str, Any], dotted: str, default: Any = _MISSING) -> Any:
@@ -180,6 +199,9 @@ def required_files(manifest: Mapping[str, Any]) -> tuple[str, ...]:
     names = ["text_encoder.onnx", "tokenizer.json", "masked.onnx"]
     if manifest["residual_layers"] > 1:
         names.append("residual.onnx")
+    for branch in masked.get("branches") or []:
+        graphs = branch_graphs(branch["name"])
+        names += graphs if manifest["residual_layers"] > 1 else graphs[:1]
     if masked["length_estimator"]:
         names.append(LENGTH_GRAPH)
     return (*names, "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md")
@@ -195,17 +217,43 @@ def _check_gpt_consistency(manifest: Mapping[str, Any]) -> None:
                           f"{manifest['max_tokens'] + 1}")
 
 
-def _check_masked_consistency(manifest: Mapping[str, Any]) -> None:
-    """mask_id = K (the class after the codes), pad_id = K (the residual stage's "layer unused" class)."""
-    masked, size = manifest["masked"], manifest["codebook_size"]
-    for field, want in (("mask_id", size), ("pad_id", size)):
-        if masked[field] != want:
-            raise BundleError(f"{MANIFEST_NAME}: field 'masked.{field}' is {masked[field]}, expected codebook_size "
-                              f"{size}")
+def _check_token_ids(block: Mapping[str, Any], where: str, size: int) -> None:
+    """mask_id = K (the class after the codes), pad_id = K (the residual stage's "layer unused" class; K + 1 when
+    the residual stage also scores the mask class), top-k at most K."""
+    pad = size + int(bool(block.get("residual_mask_class")))
+    for field, want, what in (("mask_id", size, "codebook_size"), ("pad_id", pad, "codebook_size" if pad == size
+                                                                   else "codebook_size + 1 (residual_mask_class)")):
+        if block[field] != want:
+            raise BundleError(f"{MANIFEST_NAME}: field '{where}.{field}' is {block[field]}, expected {what} {want}")
     for field in ("top_k", "residual_top_k"):
-        if masked[field] is not None and masked[field] > size:
-            raise BundleError(f"{MANIFEST_NAME}: field 'masked.{field}' is {masked[field]}, more than codebook_size "
+        if block[field] is not None and block[field] > size:
+            raise BundleError(f"{MANIFEST_NAME}: field '{where}.{field}' is {block[field]}, more than codebook_size "
                               f"{size}")
+
+
+def _check_branches(manifest: Mapping[str, Any]) -> None:
+    """Each `masked.branches` entry: its fields, its token ids, a name of its own, its graphs listed."""
+    names = {"masked"}
+    for index, branch in enumerate(manifest["masked"].get("branches") or []):
+        where = f"masked.branches.{index}"
+        if not isinstance(branch, Mapping):
+            raise BundleError(f"{MANIFEST_NAME}: field '{where}' must be an object, got {branch!r}")
+        for field, (check, expected) in BRANCH_FIELDS.items():
+            value = branch.get(field, _MISSING)
+            if value is _MISSING:
+                raise BundleError(f"{MANIFEST_NAME}: missing field '{where}.{field}'")
+            if not check(value):
+                raise BundleError(f"{MANIFEST_NAME}: field '{where}.{field}' must be {expected}, got {value!r}")
+        if branch["name"] in names:
+            raise BundleError(f"{MANIFEST_NAME}: field '{where}.name' {branch['name']!r} is used twice")
+        names.add(branch["name"])
+        _check_token_ids(branch, where, branch["codebook_size"])
+
+
+def _check_masked_consistency(manifest: Mapping[str, Any]) -> None:
+    masked = manifest["masked"]
+    _check_token_ids(masked, "masked", manifest["codebook_size"])
+    _check_branches(manifest)
     if masked["length_estimator"] and LENGTH_GRAPH not in manifest["files"]:
         raise BundleError(f"{MANIFEST_NAME}: field 'masked.length_estimator' is true but 'files' does not list "
                           f"{LENGTH_GRAPH!r}")
@@ -258,6 +306,25 @@ class GptSettings:
 
 
 @dataclass(frozen=True)
+class BranchSettings:
+    """A `masked.branches` entry: one more token generator on the same rows (its own masked and residual graphs),
+    whose map joins the primary one along the columns before decoding."""
+
+    name: str
+    columns: int
+    codebook_size: int
+    top_k: int | None
+    residual_top_k: int | None
+    mask_id: int
+    pad_id: int
+    residual_mask_class: bool
+
+    @property
+    def graphs(self) -> tuple[str, str]:
+        return branch_graphs(self.name)
+
+
+@dataclass(frozen=True)
 class MaskedSettings:
     """The `masked` block: the token map's width and the two stages' decoding settings (t2m.decoding.masked)."""
 
@@ -272,6 +339,14 @@ class MaskedSettings:
     unconditional_branch: bool
     length_estimator: bool
     residual_temperature: float | None = None  # null: the request's temperature (MoMask's imports: 1.0)
+    temperature: float | None = None  # null: the request's; MoGenTS's imports: 1 (its sampler ignores temperature)
+    residual_mask_class: bool = False  # the residual graph also scores the mask id (MoGenTS's 2D model)
+    branches: tuple[BranchSettings, ...] = ()
+
+    @property
+    def decoder_columns(self) -> int:
+        """Columns of the decoder's code map: this block's, then every branch's."""
+        return self.columns + sum(branch.columns for branch in self.branches)
 
 
 @dataclass(frozen=True)
@@ -353,7 +428,11 @@ def _masked_settings(raw: dict[str, Any]) -> MaskedSettings:
                           residual_top_k=m["residual_top_k"], mask_id=m["mask_id"], pad_id=m["pad_id"],
                           unconditional_branch=m["unconditional_branch"], length_estimator=m["length_estimator"],
                           residual_temperature=(None if m.get("residual_temperature") is None
-                                                else float(m["residual_temperature"])))
+                                                else float(m["residual_temperature"])),
+                          temperature=None if m.get("temperature") is None else float(m["temperature"]),
+                          residual_mask_class=bool(m.get("residual_mask_class", False)),
+                          branches=tuple(BranchSettings(**{key: b[key] for key in BRANCH_FIELDS})
+                                         for b in m.get("branches") or []))
 
 
 def parse_manifest(raw: dict[str, Any]) -> Manifest:

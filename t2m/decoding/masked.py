@@ -26,7 +26,7 @@ import numpy as np
 
 from t2m.decoding.tokens import draw_tokens, guided_logits
 
-__all__ = ["MaskedJob", "MaskedStep", "ResidualStep", "remask_counts", "sample_token_maps"]
+__all__ = ["MaskedJob", "MaskedStep", "ResidualStep", "remask_counts", "sample_branch_maps", "sample_token_maps"]
 
 
 class MaskedStep(Protocol):
@@ -39,10 +39,14 @@ class MaskedStep(Protocol):
 
 
 class ResidualStep(Protocol):
-    """The residual transformer: codes [B, T, C, R] (-1 = not yet), layer [B], cond, length -> logits for layer q."""
+    """The residual transformer: codes [B, T, C, R] (-1 = not yet), layer [B], cond, length -> logits for layer q.
+    ``mask_id``: None, or the mask class K the logits also score (MoGenTS's 2D residual model, K + 2 classes): a
+    drawn K stays in the map (its embedding enters the next layer), and a segment with one gets every code clipped
+    to [0, K - 1] at the end (-1 included), as MoGenTS's ``generate`` does for the one motion of its call."""
 
     layers: int
     pad_id: int
+    mask_id: int | None
 
     def __call__(self, codes: np.ndarray, layer: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray: ...
 
@@ -63,6 +67,7 @@ class MaskedJob:
     residual_temperature: float | None = None  # None: `temperature` (MoMask's generate: always 1 in this stage)
     greedy: bool = False
     cancelled: Callable[[], bool] = field(default=lambda: False)
+    branches: list[MaskedJob] = field(default_factory=list)  # further generators on these segments (sample_branch_maps)
 
 
 def remask_counts(tokens: int, steps: int) -> list[int]:
@@ -170,6 +175,11 @@ def _residual_layers(step: ResidualStep, jobs: Sequence[MaskedJob], segments: li
                                                                             "residual"))):
             drawn[drawn == step.pad_id] = -1
             codes[index, :segment.rows, :, q] = drawn.reshape(segment.rows, columns)
+    if step.mask_id is not None:
+        for index, segment in enumerate(segments):
+            own = codes[index, :segment.rows]
+            if (own == step.mask_id).any():
+                own[...] = own.clip(0, step.mask_id - 1)
     return codes
 
 
@@ -208,3 +218,23 @@ def sample_token_maps(masked: MaskedStep, residual: ResidualStep | None, jobs: S
     for index, segment in enumerate(segments):
         maps[live[segment.job]].append(codes[index, :segment.rows])
     return [maps.get(j) for j in range(len(jobs))]
+
+
+def sample_branch_maps(branches: Sequence[tuple[MaskedStep, ResidualStep | None]], jobs: Sequence[MaskedJob],
+                       on_call: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
+    """Several token generators on the same rows (MoGenTS: its 2D map, then its 1D tokens): branch 0 runs
+    ``jobs``, branch b > 0 each job's ``branches[b - 1]`` (a request's jobs share its rows, text features and
+    generator, so its draws follow one another in branch order), and each segment's maps are joined along the
+    column axis in branch order: [rows, C_0 + C_1 + ..., R]. Every branch needs the same number of layers R. A
+    request cancelled in any branch is None."""
+    if any(len(job.branches) != len(branches) - 1 for job in jobs):
+        raise ValueError(f"every job needs {len(branches) - 1} branch job(s), one per further generator")
+    results = [sample_token_maps(masked, residual, [job.branches[b - 1] if b else job for job in jobs], on_call)
+               for b, (masked, residual) in enumerate(branches)]
+    joined: list[list[np.ndarray] | None] = []
+    for per_branch in zip(*results):
+        if any(maps is None for maps in per_branch):
+            joined.append(None)
+            continue
+        joined.append([np.concatenate(segment, axis=1) for segment in zip(*per_branch)])
+    return joined

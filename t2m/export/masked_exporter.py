@@ -8,16 +8,18 @@ PyTorch (logits, decoded features, identical tokens over a greedy full decode) i
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from t2m.bundle.manifest import branch_graphs
 from t2m.export.bundle import check_out_dir, motion_fields, prepare_out_dir, write_bundle
 from t2m.export.exporter import GROSS_PARITY_ERROR, INT8_LABEL, TextSource, quantize_in_place, text_int8_line
 from t2m.export.onnx_masked import (
+    MapVQ,
     decode_parity,
     export_joint_decoder,
     export_length,
@@ -30,6 +32,7 @@ from t2m.export.onnx_masked import (
     transformer_parity,
     unit_conditions,
 )
+from t2m.model.networks.fused_vqvae import FusedVQVAE
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer
@@ -38,7 +41,8 @@ from t2m.model.networks.vqvae import MotionVQVAE
 
 log = logging.getLogger(__name__)
 
-__all__ = ["INT8_GRAPHS", "MaskedDecoding", "check_masked_models", "export_masked_bundle", "export_masked_from_runs"]
+__all__ = ["INT8_GRAPHS", "MaskedDecoding", "TokenBranch", "check_masked_models", "export_masked_bundle",
+           "export_masked_from_runs"]
 
 # graphs that may be int8 (dynamic quantisation, 7-bit weights); the decoder and length graphs stay float32
 INT8_GRAPHS = ("text", "masked", "residual")
@@ -54,6 +58,32 @@ class MaskedDecoding:
     top_k: int | None = None
     residual_top_k: int | None = None
     residual_temperature: float | None = None  # None: the request's temperature; MoMask's imports fix it at 1
+    temperature: float | None = None  # the mask stage's, fixed (MoGenTS's imports: 1); None: the request's
+
+
+@dataclass(frozen=True)
+class TokenBranch:
+    """A further token generator on the same rows (MoGenTS's 1D "aux" tokens beside its 2D map): its models, its
+    top-k, and the graphs ``masked_<name>.onnx`` / ``residual_<name>.onnx``; its map joins the primary one along
+    the columns before the one decode."""
+
+    name: str
+    masked: MaskedTransformer
+    residual: ResidualTransformer | None
+    top_k: int | None = None
+    residual_top_k: int | None = None
+
+    def manifest_entry(self) -> dict[str, Any]:
+        c, r = self.masked.config, self.residual
+        return {"name": self.name, "columns": c.columns, "codebook_size": c.codebook_size, "top_k": self.top_k,
+                "residual_top_k": self.residual_top_k, "mask_id": c.mask_id,
+                "pad_id": c.codebook_size if r is None else r.pad_id,
+                "residual_mask_class": r is not None and r.mask_id is not None}
+
+
+def _is_decode(key: str) -> bool:
+    """A parity report's full-decode entries: "decode" and "decode_<branch>" (not "decoder")."""
+    return key == "decode" or key.startswith("decode_")
 
 
 @dataclass
@@ -77,10 +107,15 @@ class MaskedExportChecks:
             lines.append(f"- length estimator: max |logit diff| {p['length']['max_abs_diff']:.2e}")
         if "text_encoder" in p:
             lines.append(f"- text encoder: max |feature diff| {p['text_encoder']['max_abs_diff']:.2e}")
-        d = p["decode"]
-        lines += [f"- full greedy decode (maps {d['shape']}): tokens identical {d['tokens_identical']}"
-                  f" ({d['differing_tokens']} differ)", ""]
-        return "\n".join(lines + int8)
+        for key in sorted(p):
+            if key.startswith(("masked_", "residual_")):
+                role, name = key.split("_", 1)
+                lines.append(f"- {role} transformer of branch {name}: max |logit diff| {p[key]['max_abs_diff']:.2e}")
+        for key in sorted(k for k in p if _is_decode(k)):
+            d, branch = p[key], key.partition("_")[2]
+            lines.append(f"- full greedy decode{' of branch ' + branch if branch else ''} (maps {d['shape']}): tokens "
+                         f"identical {d['tokens_identical']} ({d['differing_tokens']} differ)")
+        return "\n".join([*lines, "", *int8])
 
     def _int8_lines(self) -> list[str]:
         if not self.int8:
@@ -106,25 +141,43 @@ class MaskedExportChecks:
         return lines
 
 
-def check_masked_models(vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
-                        residual: ResidualTransformer | None, length: LengthEstimator | None) -> None:
-    """The modules fit together: codebook, columns and layers of the VQ, one text dim, one max_tokens."""
-    columns, layers = map_shape(vq)
+def _check_generator(role: str, masked: MaskedTransformer, residual: ResidualTransformer | None, codebook: int,
+                     columns: int, layers: int) -> None:
+    """One generator fits its part of the VQ's map: codebook, columns, layers, one text dim."""
     c = masked.config
-    if (c.codebook_size, c.columns) != (vq.config.nb_code, columns):
-        raise ValueError(f"the masked transformer has {c.codebook_size} codes x {c.columns} columns, the VQ "
-                         f"{vq.config.nb_code} x {columns}")
+    if (c.codebook_size, c.columns) != (codebook, columns):
+        raise ValueError(f"the {role}masked transformer has {c.codebook_size} codes x {c.columns} columns, the VQ "
+                         f"{codebook} x {columns}")
     if layers > 1 and residual is None:
-        raise ValueError(f"the VQ has {layers} quantiser layers: a residual transformer is needed")
+        raise ValueError(f"the VQ has {layers} quantiser layers: a {role}residual transformer is needed")
     if residual is not None:
         r = residual.config
         if layers == 1:
             raise ValueError("the VQ has one quantiser layer: a residual transformer has nothing to predict")
-        if (r.codebook_size, r.columns, r.residual_layers) != (vq.config.nb_code, columns, layers):
-            raise ValueError(f"the residual transformer has {r.codebook_size} codes x {r.columns} columns x "
-                             f"{r.residual_layers} layers, the VQ {vq.config.nb_code} x {columns} x {layers}")
+        if (r.codebook_size, r.columns, r.residual_layers) != (codebook, columns, layers):
+            raise ValueError(f"the {role}residual transformer has {r.codebook_size} codes x {r.columns} columns x "
+                             f"{r.residual_layers} layers, the VQ {codebook} x {columns} x {layers}")
         if r.text_dim != c.text_dim:
             raise ValueError(f"text dims differ: masked {c.text_dim}, residual {r.text_dim}")
+
+
+def check_masked_models(vq: MapVQ, masked: MaskedTransformer, residual: ResidualTransformer | None,
+                        length: LengthEstimator | None, branches: Sequence[TokenBranch] = ()) -> None:
+    """The modules fit together: codebook, columns and layers of the VQ (the fused VQ: the 2D map for the primary
+    generator, its 1D tokens for one branch), one text dim, one max_tokens."""
+    columns, layers = map_shape(vq)
+    c = masked.config
+    branch_codebooks = [vq.config.nb_code1d] if isinstance(vq, FusedVQVAE) else []
+    if len(branches) != len(branch_codebooks):
+        raise ValueError(f"the VQ's map holds {len(branch_codebooks) + 1} generator(s)' tokens, got "
+                         f"{len(branches) + 1}")
+    primary = columns - sum(branch.masked.config.columns for branch in branches)
+    _check_generator("", masked, residual, vq.config.nb_code, primary, layers)
+    for branch, codebook in zip(branches, branch_codebooks):
+        _check_generator(f"{branch.name} ", branch.masked, branch.residual, codebook, branch.masked.config.columns,
+                         layers)
+        if branch.masked.config.text_dim != c.text_dim:
+            raise ValueError(f"text dims differ: masked {c.text_dim}, {branch.name} {branch.masked.config.text_dim}")
     if length is not None:
         if length.config.text_dim != c.text_dim:
             raise ValueError(f"text dims differ: masked {c.text_dim}, length estimator {length.config.text_dim}")
@@ -135,6 +188,12 @@ def check_masked_models(vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
 def _residual_temperature(masked: Mapping[str, Any]) -> str:
     value = masked.get("residual_temperature")
     return "" if value is None else f", temperature {value:g}"
+
+
+def _branches(branches: list[dict[str, Any]]) -> str:
+    return "; ".join(f"{b['name']}: codebook {b['codebook_size']}, {b['columns']} column(s), top-k {b['top_k']} "
+                     f"(residual {b['residual_top_k']}), its map joined to the decoder's columns"
+                     for b in branches)
 
 
 def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
@@ -153,6 +212,7 @@ def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> st
         f"| decoding | {m['steps']} re-masking steps, guidance {m['guidance']} (residual {m['residual_guidance']}),"
         f" top-k {m['top_k']} (residual {m['residual_top_k']}{_residual_temperature(m)}); length estimator "
         f"{'yes' if m['length_estimator'] else 'no'} |",
+        *([f"| further generators | {_branches(m['branches'])} |"] if m.get("branches") else []),
         f"| text encoder | {text['kind']} ({text['dim']}-d, {text['pooling']} pooling,"
         f" {'L2-normalised' if text['normalize'] else 'not normalised'}, max {text['max_length']} tokens) |",
         f"| training data | {data['name']} ({data['license']}) |",
@@ -165,9 +225,9 @@ def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> st
     return "\n".join(lines)
 
 
-def _parity(out_dir: Path, vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
-            residual: ResidualTransformer | None, length: LengthEstimator | None, text_source: TextSource,
-            mean: np.ndarray, std: np.ndarray, decoding: MaskedDecoding) -> dict[str, Any]:
+def _parity(out_dir: Path, vq: MapVQ, masked: MaskedTransformer, residual: ResidualTransformer | None,
+            length: LengthEstimator | None, text_source: TextSource, mean: np.ndarray, std: np.ndarray,
+            decoding: MaskedDecoding, branches: Sequence[TokenBranch]) -> dict[str, Any]:
     from t2m.export.parity import text_parity
 
     report: dict[str, Any] = {"masked": asdict(transformer_parity(masked, out_dir / "masked.onnx")),
@@ -180,44 +240,60 @@ def _parity(out_dir: Path, vq: JointVQVAE | MotionVQVAE, masked: MaskedTransform
         report["text_encoder"] = asdict(text_parity(text_source.encoder, out_dir / "text_encoder.onnx",
                                                     out_dir / "tokenizer.json"))
     rows = [min(masked.config.max_tokens, 6), min(masked.config.max_tokens, 3)]
-    report["decode"] = asdict(decode_parity(
-        masked, residual, out_dir / "masked.onnx", None if residual is None else out_dir / "residual.onnx", rows,
-        steps=decoding.steps, guidance=decoding.guidance, residual_guidance=decoding.residual_guidance))
+    generators = [("", masked, residual, ("masked.onnx", "residual.onnx"))]
+    generators += [(f"_{b.name}", b.masked, b.residual, branch_graphs(b.name)) for b in branches]
+    for suffix, m, r, (m_file, r_file) in generators:
+        if suffix:
+            report[f"masked{suffix}"] = asdict(transformer_parity(m, out_dir / m_file))
+            if r is not None:
+                report[f"residual{suffix}"] = asdict(transformer_parity(r, out_dir / r_file))
+        report[f"decode{suffix}"] = asdict(decode_parity(
+            m, r, out_dir / m_file, None if r is None else out_dir / r_file, rows, steps=decoding.steps,
+            guidance=decoding.guidance, residual_guidance=decoding.residual_guidance))
     worst = {key: value["max_abs_diff"] for key, value in report.items() if "max_abs_diff" in value}
     broken = {key: diff for key, diff in worst.items() if not diff <= GROSS_PARITY_ERROR}
     if broken:
         raise ValueError(f"exported graphs differ from PyTorch by more than {GROSS_PARITY_ERROR}: {broken}")
-    if not report["decode"]["tokens_identical"]:
-        log.warning("masked graphs: greedy tokens differ from PyTorch's (near-tie logits?): %s", report["decode"])
+    for key in (k for k in report if _is_decode(k) and not report[k]["tokens_identical"]):
+        log.warning("masked graphs: greedy tokens differ from PyTorch's (near-tie logits?): %s", report[key])
     return report
 
 
 def export_masked_bundle(
-    out_dir: str | Path, *, vq: JointVQVAE | MotionVQVAE, masked: MaskedTransformer,
+    out_dir: str | Path, *, vq: MapVQ, masked: MaskedTransformer,
     residual: ResidualTransformer | None, length: LengthEstimator | None, mean: np.ndarray, std: np.ndarray,
     text_source: TextSource, name: str, version: str, training_data: Mapping[str, str], license: str,
     decoding: MaskedDecoding = MaskedDecoding(), unconditional_branch: bool = True, notes: str = "",
-    check_parity: bool = True, int8: frozenset[str] = frozenset(),
+    check_parity: bool = True, int8: frozenset[str] = frozenset(), branches: Sequence[TokenBranch] = (),
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """Export, check against PyTorch, write and verify a masked bundle; returns (manifest, checks).
 
     ``int8`` names graphs of INT8_GRAPHS to quantise after the float32 parity checks; each one's price is measured
     (text: cosine to the float32 features; token graphs: logit difference, speed, and a greedy full decode with the
-    int8 graphs against PyTorch)."""
+    int8 graphs against PyTorch); a bundle with branches keeps its token graphs float32. ``branches``: further
+    generators on the same rows (the manifest's ``masked.branches``; MoGenTS)."""
     unknown = set(int8) - set(INT8_GRAPHS)
     if unknown:
         raise ValueError(f"int8: {', '.join(sorted(unknown))} not among {', '.join(INT8_GRAPHS)}")
     if "residual" in int8 and residual is None:
         raise ValueError("int8: 'residual' given but there is no residual transformer")
-    check_masked_models(vq, masked, residual, length)
-    for key, value in (("top_k", decoding.top_k), ("residual_top_k", decoding.residual_top_k)):
-        if value is not None and not 1 <= value <= masked.config.codebook_size:
-            raise ValueError(f"{key} must be null or 1..{masked.config.codebook_size}, got {value}")
-    if decoding.residual_temperature is not None and not decoding.residual_temperature > 0:
-        raise ValueError(f"residual_temperature must be null or > 0, got {decoding.residual_temperature}")
+    if {"masked", "residual"} & set(int8) and branches:
+        raise ValueError("int8: token graphs of a bundle with branches stay float32 (only 'text')")
+    check_masked_models(vq, masked, residual, length, branches)
+    limits = [(key, value, masked.config.codebook_size) for key, value in
+              (("top_k", decoding.top_k), ("residual_top_k", decoding.residual_top_k))]
+    limits += [(f"{b.name} {key}", value, b.masked.config.codebook_size) for b in branches
+               for key, value in (("top_k", b.top_k), ("residual_top_k", b.residual_top_k))]
+    for key, value, size in limits:
+        if value is not None and not 1 <= value <= size:
+            raise ValueError(f"{key} must be null or 1..{size}, got {value}")
+    for key, temperature in (("residual_temperature", decoding.residual_temperature),
+                             ("temperature", decoding.temperature)):
+        if temperature is not None and not temperature > 0:
+            raise ValueError(f"{key} must be null or > 0, got {temperature}")
     check_out_dir(out_dir)
     out_dir = prepare_out_dir(out_dir)
-    for module in (vq, masked, residual, length):
+    for module in (vq, masked, residual, length, *(m for b in branches for m in (b.masked, b.residual))):
         if module is not None:
             module.eval()
     log.info("exporting the text encoder")
@@ -230,31 +306,43 @@ def export_masked_bundle(
     if residual is not None:
         export_residual(residual, out_dir / "residual.onnx")
         names.append("residual.onnx")
+    for branch in branches:
+        masked_file, residual_file = branch_graphs(branch.name)
+        export_masked(branch.masked, out_dir / masked_file)
+        names.append(masked_file)
+        if branch.residual is not None:
+            export_residual(branch.residual, out_dir / residual_file)
+            names.append(residual_file)
     if length is not None:
         export_length(length, out_dir / "length.onnx")
         names.append("length.onnx")
     export_joint_decoder(vq, mean, std, out_dir / "decoder.onnx")
     np.save(out_dir / "mean.npy", np.asarray(mean, dtype=np.float32))
     np.save(out_dir / "std.npy", np.asarray(std, dtype=np.float32))
-    columns, layers = map_shape(vq)
+    layers = map_shape(vq)[1]
     c = masked.config
     manifest: dict[str, Any] = {
         "format_version": 1, "family": "masked", "name": name, "version": version,
         **motion_fields(vq.config.feat_dim, vq.config.frames_per_token, c.max_tokens),
         "codebook_size": c.codebook_size, "residual_layers": layers,
-        "masked": {"columns": columns, "steps": decoding.steps, "guidance": float(decoding.guidance),
+        "masked": {"columns": c.columns, "steps": decoding.steps, "guidance": float(decoding.guidance),
                    "residual_guidance": float(decoding.residual_guidance), "top_k": decoding.top_k,
-                   "residual_top_k": decoding.residual_top_k, "mask_id": c.mask_id, "pad_id": c.codebook_size,
+                   "residual_top_k": decoding.residual_top_k, "mask_id": c.mask_id,
+                   "pad_id": c.codebook_size if residual is None else residual.pad_id,
                    "unconditional_branch": bool(unconditional_branch), "length_estimator": length is not None,
                    **({} if decoding.residual_temperature is None
-                      else {"residual_temperature": float(decoding.residual_temperature)})},
+                      else {"residual_temperature": float(decoding.residual_temperature)}),
+                   **({} if decoding.temperature is None else {"temperature": float(decoding.temperature)}),
+                   **({"residual_mask_class": True} if residual is not None and residual.mask_id is not None
+                      else {}),
+                   **({"branches": [branch.manifest_entry() for branch in branches]} if branches else {})},
         "text_encoder": text_entry, "training_data": dict(training_data), "license": license,
         "quantization": {"text_encoder": None},
     }
     checks = MaskedExportChecks()
     if check_parity:
         log.info("checking onnxruntime against PyTorch (float32)")
-        checks.parity = _parity(out_dir, vq, masked, residual, length, text_source, mean, std, decoding)
+        checks.parity = _parity(out_dir, vq, masked, residual, length, text_source, mean, std, decoding, branches)
     _quantize(out_dir, int8, masked, residual, manifest, checks, decoding)
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_masked_model_card(manifest, card_notes), encoding="utf-8")

@@ -45,7 +45,8 @@ ROLES = {"vq": "the RVQ-VAE", "masked": "the masked transformer", "residual": "t
 
 @dataclass(frozen=True)
 class MomaskFiles:
-    """The files of one import; ``length`` None: no length estimator (the bundle then needs durations)."""
+    """The files of one import (MoMask's or MoGenTS's); ``length`` None: no length estimator (the bundle then needs
+    durations)."""
 
     vq: Path
     mean: Path
@@ -99,23 +100,29 @@ def locate_release(checkpoints_dir: str | Path | None, overrides: Mapping[str, s
         candidates = [root / name / "model" / "finest.tar" for name in dict.fromkeys((LENGTH_DIR, LENGTH_DIR + suffix))]
         found["length"] = next((path for path in candidates if path.is_file()), None)
         looked_for = candidates[0]
-    paths = {**found, **given}
+    return release_files({**found, **given}, "length" in given, ROLES, "CHECKPOINTS_DIR", dataset, looked_for)
+
+
+def release_files(paths: Mapping[str, Path | None], length_given: bool, roles: Mapping[str, str], folder_arg: str,
+                  dataset: str, looked_for: Path | None) -> MomaskFiles:
+    """The located files of a release (both importers): each required one present, else one line naming it and
+    what it is for; the length estimator optional unless named by option."""
 
     def required(role: str) -> Path:
         path = paths.get(role)
         if path is None:
-            raise ValueError(f"no file for {ROLES[role]}: pass CHECKPOINTS_DIR or --{role} FILE")
+            raise ValueError(f"no file for {roles[role]}: pass {folder_arg} or --{role} FILE")
         if not path.is_file():
             needed = " (needed for de-normalisation)" if role in ("mean", "std") else ""
-            raise ValueError(f"{path}: missing file: {ROLES[role]}{needed}")
+            raise ValueError(f"{path}: missing file: {roles[role]}{needed}")
         return path
 
     length = paths.get("length")
-    if length is not None and "length" in given:
+    if length is not None and length_given:
         length = required("length")
     return MomaskFiles(vq=required("vq"), mean=required("mean"), std=required("std"), masked=required("masked"),
                        residual=required("residual"), length=length, dataset=dataset,
-                       length_looked_for=None if "length" in given else looked_for)
+                       length_looked_for=None if length_given else looked_for)
 
 
 def kit_fps_note(dataset: str) -> str | None:

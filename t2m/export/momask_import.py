@@ -19,14 +19,14 @@ from __future__ import annotations
 import logging
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from torch import nn
 
-from t2m.export.exporter import clip_text_source
+from t2m.export.exporter import TextSource, clip_text_source
 from t2m.export.masked_exporter import MaskedDecoding, MaskedExportChecks, export_masked_bundle
 from t2m.export.momask_card import release_notes
 from t2m.export.momask_files import (
@@ -75,17 +75,17 @@ def release_decoding(dataset: str, codebook_size: int) -> MaskedDecoding:
 
 # --------------------------------------------------------------------------------------------- tensor checks
 
-def _shape(shape: tuple[int, ...] | torch.Size) -> str:
+def shape_text(shape: tuple[int, ...] | torch.Size) -> str:
     return "[" + ", ".join(str(int(n)) for n in shape) + "]"
 
 
-def _tensor(state: Mapping[str, torch.Tensor], key: str, where: str, expected: str, ndim: int) -> torch.Tensor:
+def require_tensor(state: Mapping[str, torch.Tensor], key: str, where: str, expected: str, ndim: int) -> torch.Tensor:
     """A tensor the sizes are read from: present, with ``ndim`` axes."""
     if key not in state:
         raise ValueError(f"{where}: missing tensor '{key}' {expected}")
     tensor = state[key]
     if tensor.ndim != ndim:
-        raise ValueError(f"{where}: tensor '{key}' has shape {_shape(tensor.shape)}, expected {expected}")
+        raise ValueError(f"{where}: tensor '{key}' has shape {shape_text(tensor.shape)}, expected {expected}")
     return tensor
 
 
@@ -94,23 +94,24 @@ def _count(state: Mapping[str, torch.Tensor], pattern: str) -> int:
     return len({m.group(1) for k in state if (m := regex.fullmatch(k))})
 
 
-def check_tensors(state: Mapping[str, torch.Tensor], module: nn.Module, where: str) -> None:
+def check_tensors(state: Mapping[str, torch.Tensor], module: nn.Module, where: str, release: str = "MoMask") -> None:
     """Every tensor of ``module`` in ``state`` with its shape, and nothing else: one line naming the first key that
     is missing, has another shape (with the one expected) or is not part of the model."""
     expected = {key: tuple(value.shape) for key, value in module.state_dict().items()}
     for key, shape in expected.items():
         if key not in state:
-            raise ValueError(f"{where}: missing tensor '{key}' {_shape(shape)}")
+            raise ValueError(f"{where}: missing tensor '{key}' {shape_text(shape)}")
         if tuple(state[key].shape) != shape:
-            raise ValueError(f"{where}: tensor '{key}' has shape {_shape(state[key].shape)}, expected "
-                             f"{_shape(shape)}")
+            raise ValueError(f"{where}: tensor '{key}' has shape {shape_text(state[key].shape)}, expected "
+                             f"{shape_text(shape)}")
     extra = sorted(set(state) - set(expected))
     if extra:
-        raise ValueError(f"{where}: unexpected tensor '{extra[0]}' (not part of MoMask's released model)")
+        raise ValueError(f"{where}: unexpected tensor '{extra[0]}' (not part of {release}'s released model)")
 
 
-def _load(module: nn.Module, state: Mapping[str, torch.Tensor], where: str) -> Any:
-    check_tensors(state, module, where)
+def load_strict(module: nn.Module, state: Mapping[str, torch.Tensor], where: str, release: str = "MoMask") -> Any:
+    """``module`` with every tensor of ``state`` checked (check_tensors), loaded, in eval mode."""
+    check_tensors(state, module, where, release)
     module.load_state_dict(dict(state), strict=True)  # cannot fail: every key and shape was checked
     return module.eval()
 
@@ -120,22 +121,22 @@ def _load(module: nn.Module, state: Mapping[str, torch.Tensor], where: str) -> A
 def _vq(path: Path, allow_pickle: bool) -> tuple[MotionVQVAE, str]:
     key, state = read_state(path, "vq", allow_pickle)
     where = f"{path} ['{key}']"
-    _tensor(state, "encoder.model.0.weight", where, "[width, features, 3]", 3)
+    require_tensor(state, "encoder.model.0.weight", where, "[width, features, 3]", 3)
     if "quantizer.layers.0.codebook" not in state:
         raise ValueError(f"{where}: missing tensor 'quantizer.layers.0.codebook' (MoMask's RVQ-VAE has one codebook "
                          "per quantiser layer)")
     config = infer_vq_config(state, where)
     if config.residual_layers < 2:
         raise ValueError(f"{where}: {config.residual_layers} quantiser layer; MoMask's RVQ-VAE has several")
-    return _load(MotionVQVAE(config), state, where), key
+    return load_strict(MotionVQVAE(config), state, where), key
 
 
-def _encoder_sizes(state: Mapping[str, torch.Tensor], where: str, heads: int) -> dict[str, int]:
-    cond = _tensor(state, "cond_emb.weight", where, "[latent, text_dim]", 2)
+def encoder_sizes(state: Mapping[str, torch.Tensor], where: str, heads: int) -> dict[str, int]:
+    cond = require_tensor(state, "cond_emb.weight", where, "[latent, text_dim]", 2)
     layers = _count(state, r"seqTransEncoder\.layers\.(\d+)\.linear1\.weight")
     if layers == 0:
         raise ValueError(f"{where}: missing tensor 'seqTransEncoder.layers.0.linear1.weight' [ff, latent]")
-    ff = _tensor(state, "seqTransEncoder.layers.0.linear1.weight", where, "[ff, latent]", 2)
+    ff = require_tensor(state, "seqTransEncoder.layers.0.linear1.weight", where, "[ff, latent]", 2)
     latent = int(cond.shape[0])
     if heads < 1 or latent % heads:
         raise ValueError(f"--heads {heads} does not divide the transformer width {latent}")
@@ -143,29 +144,37 @@ def _encoder_sizes(state: Mapping[str, torch.Tensor], where: str, heads: int) ->
             "n_head": heads}
 
 
-def _positions(state: dict[str, torch.Tensor], where: str, latent: int, rows: int) -> None:
+def read_positions(state: dict[str, torch.Tensor], where: str, latent: int, rows: int) -> None:
     """The checkpoint's own positional table, cut to the rows a motion can have (the rest is never read)."""
-    pe = _tensor(state, "position_enc.pe", where, f"[>= {rows}, 1, {latent}]", 3)
+    pe = require_tensor(state, "position_enc.pe", where, f"[>= {rows}, 1, {latent}]", 3)
     if pe.shape[0] < rows or tuple(pe.shape[1:]) != (1, latent):
-        raise ValueError(f"{where}: tensor 'position_enc.pe' has shape {_shape(pe.shape)}, expected "
+        raise ValueError(f"{where}: tensor 'position_enc.pe' has shape {shape_text(pe.shape)}, expected "
                          f"[>= {rows}, 1, {latent}]")
     state["position_enc.pe"] = pe[:rows].clone()
 
 
+def token_config(sizes: dict[str, int], codebook_size: int, residual_layers: int, code_dim: int,
+                 **layout: Any) -> TokenTransformerConfig:
+    """A released transformer's config: sizes read from its tensors, the release's values, MoMask's 1D layout
+    unless ``layout`` says otherwise (MoGenTS's 2D models)."""
+    return TokenTransformerConfig(**{
+        "codebook_size": codebook_size, "columns": 1, "residual_layers": residual_layers,
+        "max_tokens": RELEASE_MAX_TOKENS, "latent": sizes["latent"], "n_head": sizes["n_head"],
+        "n_layer": sizes["n_layer"], "ff_size": sizes["ff_size"], "dropout": RELEASE_DROPOUT,
+        "text_dim": sizes["text_dim"], "code_dim": code_dim, "positional": "1d", "spatial_attention": False,
+        "temporal_attention": False, "share_weight": True, **layout})
+
+
 def _token_config(vq: MotionVQVAE, sizes: dict[str, int]) -> TokenTransformerConfig:
-    return TokenTransformerConfig(
-        codebook_size=vq.config.nb_code, columns=1, residual_layers=vq.config.residual_layers,
-        max_tokens=RELEASE_MAX_TOKENS, latent=sizes["latent"], n_head=sizes["n_head"], n_layer=sizes["n_layer"],
-        ff_size=sizes["ff_size"], dropout=RELEASE_DROPOUT, text_dim=sizes["text_dim"], code_dim=vq.config.code_dim,
-        positional="1d", spatial_attention=False, temporal_attention=False, share_weight=True)
+    return token_config(sizes, vq.config.nb_code, vq.config.residual_layers, vq.config.code_dim)
 
 
 def _masked(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tuple[MaskedTransformer, str]:
     key, state = read_state(path, "masked", allow_pickle)
     where = f"{path} ['{key}']"
-    config = _token_config(vq, _encoder_sizes(state, where, heads))
-    _positions(state, where, config.latent, config.max_tokens)
-    return _load(MaskedTransformer(config), state, where), key
+    config = _token_config(vq, encoder_sizes(state, where, heads))
+    read_positions(state, where, config.latent, config.max_tokens)
+    return load_strict(MaskedTransformer(config), state, where), key
 
 
 def _residual(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tuple[ResidualTransformer, str]:
@@ -174,22 +183,23 @@ def _residual(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tu
     if "token_embed_weight_" not in state:
         raise ValueError(f"{where}: missing tensor 'token_embed_weight_' [1, {vq.config.nb_code + 1}, "
                          f"{vq.config.code_dim}] (the release's residual transformer shares its tables)")
-    config = _token_config(vq, _encoder_sizes(state, where, heads))
-    _positions(state, where, config.latent, config.max_tokens)
-    return _load(ResidualTransformer(config), state, where), key
+    config = _token_config(vq, encoder_sizes(state, where, heads))
+    read_positions(state, where, config.latent, config.max_tokens)
+    return load_strict(ResidualTransformer(config), state, where), key
 
 
-def _length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEstimator, str]:
+def load_length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEstimator, str]:
+    """The length estimator (MoMask's layout, read by both importers)."""
     key, state = read_state(path, "length", allow_pickle)
     where = f"{path} ['{key}']"
-    first = _tensor(state, "output.0.weight", where, f"[hidden, {text_dim}]", 2)
+    first = require_tensor(state, "output.0.weight", where, f"[hidden, {text_dim}]", 2)
     hidden = int(first.shape[0])
     if hidden < 4:
-        raise ValueError(f"{where}: tensor 'output.0.weight' has shape {_shape(first.shape)}, expected [hidden >= 4, "
-                         f"{text_dim}]")
+        raise ValueError(f"{where}: tensor 'output.0.weight' has shape {shape_text(first.shape)}, expected "
+                         f"[hidden >= 4, {text_dim}]")
     config = LengthEstimatorConfig(text_dim=text_dim, hidden=hidden, max_tokens=RELEASE_MAX_TOKENS,
                                    dropout=RELEASE_DROPOUT)
-    return _load(LengthEstimator(config), state, where), key
+    return load_strict(LengthEstimator(config), state, where), key
 
 
 def load_momask(files: MomaskFiles, heads: int = RELEASE_HEADS, allow_pickle: bool = False) -> ImportedMomask:
@@ -204,8 +214,25 @@ def load_momask(files: MomaskFiles, heads: int = RELEASE_HEADS, allow_pickle: bo
     keys = {"vq": vq_key, "masked": masked_key, "residual": residual_key}
     length = None
     if files.length is not None:
-        length, keys["length"] = _length(files.length, masked.config.text_dim, allow_pickle)
+        length, keys["length"] = load_length(files.length, masked.config.text_dim, allow_pickle)
     return ImportedMomask(files, vq, masked, residual, length, mean, std, keys)
+
+
+ModelsT = TypeVar("ModelsT")
+
+
+def read_release(clip_weights: str | Path | None, clip_required: str, located: MomaskFiles,
+                 load: Callable[[], ModelsT]) -> tuple[TextSource, ModelsT]:
+    """What every release import does first: the CLIP file (refused before the slow checkpoint loads), the models,
+    one warning line per gap of the release (no length estimator, KIT's frame rate)."""
+    if clip_weights is None:
+        raise ValueError(clip_required)
+    text_source = clip_text_source(clip_weights)
+    models = load()
+    for note in (located.missing_length_note(), kit_fps_note(located.dataset)):
+        if note:
+            log.warning("%s", note)
+    return text_source, models
 
 
 def import_momask(
@@ -221,14 +248,9 @@ def import_momask(
     allow_pickle: bool = False,
 ) -> tuple[dict, MaskedExportChecks]:
     """The whole import: the release's files -> our modules -> a verified masked bundle with the release's settings."""
-    if clip_weights is None:
-        raise ValueError(CLIP_REQUIRED)
     located = locate_release(checkpoints_dir, files or {})
-    text_source = clip_text_source(clip_weights)  # a wrong CLIP file is refused before the slow checkpoint loads
-    models = load_momask(located, heads, allow_pickle)
-    for note in (located.missing_length_note(), kit_fps_note(located.dataset)):
-        if note:
-            log.warning("%s", note)
+    text_source, models = read_release(clip_weights, CLIP_REQUIRED, located,
+                                       lambda: load_momask(located, heads, allow_pickle))
     decoding = release_decoding(located.dataset, models.vq.config.nb_code)
     notes, training_data, license = release_notes(models, decoding, heads)
     default_name = "momask-" + ("kit" if located.dataset == "KIT-ML" else "humanml3d")

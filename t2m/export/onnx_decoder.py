@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from t2m.export.graph_export import export_graph
+from t2m.model.networks.fused_vqvae import FusedVQVAE
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.quantizers import EMAResetQuantizer, ResidualQuantizer
 from t2m.model.networks.vqvae import MotionVQVAE
@@ -29,7 +30,7 @@ class DecoderGraph(nn.Module):
     mean: torch.Tensor
     std: torch.Tensor
 
-    def __init__(self, vq: MotionVQVAE | JointVQVAE, mean: np.ndarray, std: np.ndarray) -> None:
+    def __init__(self, vq: MotionVQVAE | JointVQVAE | FusedVQVAE, mean: np.ndarray, std: np.ndarray) -> None:
         super().__init__()
         feat_dim = vq.config.feat_dim
         mean_t = torch.as_tensor(np.asarray(mean, dtype=np.float32))

@@ -28,6 +28,7 @@ from t2m.export.graph_export import export_graph, ort_session
 from t2m.export.onnx_decoder import DecoderGraph
 from t2m.export.parity import TensorParity
 from t2m.model.masked_sampling import generate_token_maps
+from t2m.model.networks.fused_vqvae import FusedVQVAE
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer
@@ -36,6 +37,7 @@ from t2m.model.networks.vqvae import MotionVQVAE
 from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
 DYNAMIC = {0: "batch", 1: "tokens"}
+MapVQ = JointVQVAE | MotionVQVAE | FusedVQVAE
 
 
 class MaskedGraph(nn.Module):
@@ -78,6 +80,14 @@ class MapDecoderGraph(DecoderGraph):
         return super().forward(codes)
 
 
+class FusedDecoderGraph(DecoderGraph):
+    """MoGenTS's fused VQ: decode(codes [B, T, C + 1, R]) * std + mean (the 2D map and the 1D tokens as one map)."""
+
+    def forward(self, codes: torch.Tensor) -> torch.Tensor:
+        assert isinstance(self.vq, FusedVQVAE)
+        return self.vq.decode(codes) * self.std + self.mean
+
+
 class LengthGraph(nn.Module):
     """cond -> logits over token-row counts 0..max_tokens, the argument order of length.onnx."""
 
@@ -89,14 +99,19 @@ class LengthGraph(nn.Module):
         return self.model(cond)
 
 
-def map_decoder_graph(vq: JointVQVAE | MotionVQVAE, mean: np.ndarray, std: np.ndarray) -> DecoderGraph:
-    """The decoder.onnx module of either VQ: codes [B, T, C, R] -> features [B, 4T, D]."""
+def map_decoder_graph(vq: MapVQ, mean: np.ndarray, std: np.ndarray) -> DecoderGraph:
+    """The decoder.onnx module of any VQ: codes [B, T, C, R] -> features [B, 4T, D]."""
+    if isinstance(vq, FusedVQVAE):
+        return FusedDecoderGraph(vq, mean, std).eval()
     graph = JointDecoderGraph(vq, mean, std) if isinstance(vq, JointVQVAE) else MapDecoderGraph(vq, mean, std)
     return graph.eval()
 
 
-def map_shape(vq: JointVQVAE | MotionVQVAE) -> tuple[int, int]:
-    """(columns, layers) of the code maps a VQ decodes (a 1D VQ: one column; a single-layer one: one layer)."""
+def map_shape(vq: MapVQ) -> tuple[int, int]:
+    """(columns, layers) of the code maps a VQ decodes (a 1D VQ: one column; a single-layer one: one layer; the
+    fused VQ: its 2D columns and one for the 1D tokens)."""
+    if isinstance(vq, FusedVQVAE):
+        return vq.config.columns + 1, vq.config.residual_layers
     if isinstance(vq, JointVQVAE):
         return vq.config.columns, vq.config.residual_layers
     return 1, vq.config.residual_layers if vq.config.quantizer == "residual" else 1
@@ -140,7 +155,7 @@ def export_residual(model: ResidualTransformer, path: str | Path) -> Path:
     )
 
 
-def export_joint_decoder(vq: JointVQVAE | MotionVQVAE, mean: np.ndarray, std: np.ndarray, path: str | Path) -> Path:
+def export_joint_decoder(vq: MapVQ, mean: np.ndarray, std: np.ndarray, path: str | Path) -> Path:
     """Write decoder.onnx for a joint VQ or a 1D one (input ``codes`` [B, T, C, R], output ``features`` [B, 4T, D])."""
     columns, layers = map_shape(vq.eval())
     generator = torch.Generator().manual_seed(0)
@@ -180,7 +195,7 @@ def transformer_parity(model: MaskedTransformer | ResidualTransformer, onnx_path
     return TensorParity(tuple(actual.shape), float(difference.max()))
 
 
-def joint_decoder_parity(vq: JointVQVAE | MotionVQVAE, mean: np.ndarray, std: np.ndarray, onnx_path: str | Path,
+def joint_decoder_parity(vq: MapVQ, mean: np.ndarray, std: np.ndarray, onnx_path: str | Path,
                          batch: int = 2, rows: int = 6, seed: int = 0) -> TensorParity:
     """decoder.onnx vs vq.decode(codes) * std + mean, on random codes with some unused (-1) upper layers."""
     columns, layers = map_shape(vq.eval())
@@ -226,7 +241,8 @@ def decode_parity(masked: MaskedTransformer, residual: ResidualTransformer | Non
     if residual is not None:
         if residual_path is None:
             raise ValueError("decode_parity: a residual model needs its residual.onnx")
-        residual_graph = OnnxResidualStep(ort_session(residual_path), residual.config.residual_layers, residual.pad_id)
+        residual_graph = OnnxResidualStep(ort_session(residual_path), residual.config.residual_layers, residual.pad_id,
+                                          residual.mask_id)
     graphs = (OnnxMaskedStep(ort_session(masked_path), masked.config.columns, masked.config.mask_id), residual_graph)
     if cond is None:
         cond = torch.randn(len(length), masked.config.text_dim, generator=torch.Generator().manual_seed(seed))

@@ -62,6 +62,14 @@ def load_checkpoint_entry(path: str | Path, keys: tuple[str, ...], allow_pickle:
     can run code from the file: only with ``allow_pickle`` (``--allow-pickle``), for files from a source the user
     trusts. A file torch cannot read at all (truncated, not a checkpoint) is named as such.
     """
+    (entry,) = load_checkpoint_entries(path, (keys,), allow_pickle)
+    return entry
+
+
+def load_checkpoint_entries(path: str | Path, wanted: tuple[tuple[str, ...], ...], allow_pickle: bool = False
+                            ) -> list[tuple[str, dict[str, torch.Tensor]]]:
+    """:func:`load_checkpoint_entry` for several state dicts of one file (MoGenTS keeps two models in each),
+    read once: per tuple of ``wanted``, the first key the file has and its state dict."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(str(path))
@@ -75,16 +83,19 @@ def load_checkpoint_entry(path: str | Path, keys: tuple[str, ...], allow_pickle:
         data = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as error:
         raise ValueError(f"{path}: not a complete PyTorch file ({_first_line(error)})") from None
-    wanted = " or ".join(f"'{k}'" for k in keys)
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{path}: expected a dict with key {wanted}, got {type(data).__name__}")
-    key = next((k for k in keys if k in data), None)
-    if key is None:
-        raise ValueError(f"{path}: no key {wanted} (keys: {', '.join(map(str, list(data)[:10]))})")
-    state = data[key]
-    if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise ValueError(f"{path}: '{key}' is not a state dict of tensors")
-    return key, {str(k): v.float() if v.is_floating_point() else v for k, v in state.items()}
+    entries = []
+    for keys in wanted:
+        alternatives = " or ".join(f"'{k}'" for k in keys)
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{path}: expected a dict with key {alternatives}, got {type(data).__name__}")
+        key = next((k for k in keys if k in data), None)
+        if key is None:
+            raise ValueError(f"{path}: no key {alternatives} (keys: {', '.join(map(str, list(data)[:10]))})")
+        state = data[key]
+        if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+            raise ValueError(f"{path}: '{key}' is not a state dict of tensors")
+        entries.append((key, {str(k): v.float() if v.is_floating_point() else v for k, v in state.items()}))
+    return entries
 
 
 def _first_line(error: BaseException) -> str:

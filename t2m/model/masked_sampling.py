@@ -35,7 +35,7 @@ class TorchResidualStep:
 
     def __init__(self, model: ResidualTransformer) -> None:
         self.model = model.eval()
-        self.layers, self.pad_id = model.config.residual_layers, model.pad_id
+        self.layers, self.pad_id, self.mask_id = model.config.residual_layers, model.pad_id, model.mask_id
 
     @torch.no_grad()
     def __call__(self, codes: np.ndarray, layer: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:

@@ -2,10 +2,12 @@
 stage, seeds that do not depend on the batch, residual layers, and the same tokens through modules and graphs."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from t2m.decoding.masked import MaskedJob, remask_counts, sample_token_maps
+from t2m.decoding.masked import MaskedJob, remask_counts, sample_branch_maps, sample_token_maps
 
 K, MASK, COLUMNS = 8, 8, 2
 
@@ -32,7 +34,7 @@ class ScriptedMasked:
 
 
 class ScriptedResidual:
-    layers, pad_id = 3, K
+    layers, pad_id, mask_id = 3, K, None
 
     def __init__(self) -> None:
         self.layers_seen: list[int] = []
@@ -100,6 +102,50 @@ def test_the_residual_stage_can_keep_its_own_temperature():
     assert (residual_codes(temperature=1e-3) == 1).all()                # near greedy: layer 1 favours code 1
     assert (residual_codes(temperature=100.0) != 1).sum() > 20           # near uniform over the 9 classes
     assert (residual_codes(temperature=100.0, residual_temperature=1e-3) == 1).all()
+
+
+class MaskClassResidual(ScriptedResidual):
+    """MoGenTS's 2D residual vocabulary (K + 2: mask id K, pad K + 1): layer 1 draws the mask id where the
+    condition's first entry is set, layer 2 draws pad everywhere."""
+
+    layers, pad_id, mask_id = 3, K + 1, K
+
+    def __call__(self, codes, layer, cond, length):
+        self.layers_seen.append(int(layer[0]))
+        batch, rows, columns, _ = codes.shape
+        logits = np.zeros((batch, rows, columns, K + 2), np.float32)
+        q = int(layer[0])
+        logits[..., K + 1 if q == 2 else 3] = 5.0
+        if q == 1:
+            logits[cond[:, 0] > 0, ..., K] = 9.0
+        return logits
+
+
+def test_a_drawn_mask_id_clips_its_segments_map_only():
+    """MoGenTS's rule: pad -> -1, and a segment whose map holds the mask id is clipped to [0, K - 1] (-1 -> 0, the
+    mask id -> K - 1); the other segment keeps its -1 (unused layer)."""
+    conds = np.eye(4)[:2]                                   # segment 0 draws the mask id at layer 1, segment 1 not
+    (maps,) = sample_token_maps(ScriptedMasked(), MaskClassResidual(), [
+        _job(conds, [3, 2], steps=2, greedy=True, guidance=1.0, residual_guidance=1.0)])
+    assert (maps[0][..., 1] == K - 1).all() and (maps[0][..., 2] == 0).all()
+    assert (maps[1][..., 1] == 3).all() and (maps[1][..., 2] == -1).all()
+
+
+def test_branches_share_rows_and_join_along_the_columns():
+    """Two generators on the same rows: the second's map after the first's columns; each job of a request draws
+    from the request's generator in branch order, so a branch's settings are its own."""
+    conds = np.eye(4)[:2]
+    job = _job(conds, [5, 2], seed=4, steps=3, guidance=1.0, residual_guidance=1.0, top_k=1)
+    job.branches = [replace(job, top_k=2, branches=[])]
+    (maps,) = sample_branch_maps([(ScriptedMasked(), ScriptedResidual()), (ScriptedMasked(), ScriptedResidual())],
+                                 [job])
+    (first,) = sample_token_maps(ScriptedMasked(), ScriptedResidual(), [
+        _job(conds, [5, 2], seed=4, steps=3, guidance=1.0, residual_guidance=1.0, top_k=1)])
+    assert [m.shape for m in maps] == [(5, 2 * COLUMNS, 3), (2, 2 * COLUMNS, 3)]
+    for joined, alone in zip(maps, first):
+        np.testing.assert_array_equal(joined[:, :COLUMNS], alone)
+    with pytest.raises(ValueError, match="1 branch job"):
+        sample_branch_maps([(ScriptedMasked(), None)] * 2, [_job(conds, [2])])
 
 
 def test_a_requests_tokens_do_not_depend_on_its_batch():

@@ -232,7 +232,7 @@ def test_top_k_and_settings_are_the_releases():
     assert release_decoding("HumanML3D", 512) == release_decoding("HumanML3D", 512)
     assert dataclasses.asdict(release_decoding("HumanML3D", 512)) == {
         "steps": 10, "guidance": 4.0, "residual_guidance": 5.0, "top_k": 52, "residual_top_k": 52,
-        "residual_temperature": 1.0}
+        "residual_temperature": 1.0, "temperature": None}
     assert release_decoding("KIT-ML", 512).guidance == 2.0
 
 

@@ -1,4 +1,4 @@
-"""`t2m import t2m-gpt` / `t2m import momask`: released checkpoints -> a verified model bundle.
+"""`t2m import t2m-gpt` / `momask` / `mogents`: released checkpoints -> a verified model bundle.
 
     t2m import t2m-gpt --vq net_last.pth --gpt net_best_fid.pth --mean mean.npy --std std.npy \
         --clip ViT-B-32.pt -o models/t2m-gpt
@@ -12,6 +12,10 @@ graph and tokenizer of an existing bundle instead (e.g. an earlier import).
 
 reads MoMask's release as it unpacks (docs/masked-family.md "Importing MoMask"); --vq/--mean/--std/--masked/
 --residual/--length name single files instead.
+
+    t2m import mogents logs/humanml3d --clip ViT-B-32.pt -o models/mogents
+
+reads MoGenTS's release likewise (docs/masked-family.md "Importing MoGenTS"), with the same file options.
 """
 from __future__ import annotations
 
@@ -52,40 +56,68 @@ def add_common_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="bundle directory to write")
 
 
+FILE_ROLES = ("vq", "mean", "std", "masked", "residual", "length")
+RELEASES = {
+    "momask": ("MoMask (checkpoints/t2m: RVQ-VAE, masked + residual transformers, length estimator)",
+               "Import MoMask's released checkpoints as a masked-family bundle with the release's decoding settings "
+               "(10 steps, guidance 4 and 5, top-k 10%).",
+               "CHECKPOINTS_DIR", "MoMask's checkpoints/t2m (or checkpoints/kit) folder as the release unpacks it",
+               ("rvq_*/model/net_best_fid.tar", "rvq_*/meta/mean.npy", "rvq_*/meta/std.npy",
+                "t2m_nlayer8_*/model/latest.tar", "tres_nlayer8_*/model/net_best_fid.tar",
+                "length_estimator/model/finest.tar")),
+    "mogents": ("MoGenTS (logs/humanml3d: fused VQ-VAE, 2D + 1D mask and residual transformers, length estimator)",
+                "Import MoGenTS's released checkpoints (both branches and the fusion) as a masked-family bundle "
+                "with the release's decoding settings (10 steps, guidance 4 and 5, top-k 10%) and its quirks.",
+                "LOGS_DIR", "MoGenTS's logs/humanml3d (or logs/kit) folder as the release unpacks it",
+                ("pretrain_vq/model/net_best_fid.tar", "pretrain_vq/meta/mean.npy", "pretrain_vq/meta/std.npy",
+                 "pretrain_mtrans/model/net_best_fid.tar (else latest.tar)",
+                 "pretrain_rtrans/model/net_best_fid.tar (else latest.tar)",
+                 "../../checkpoints/<LOGS_DIR name>/length_estimator/model/finest.tar")),
+}
+
+
 def register_momask(sources: argparse._SubParsersAction) -> None:
-    momask = sources.add_parser(
-        "momask", help="MoMask (checkpoints/t2m: RVQ-VAE, masked + residual transformers, length estimator)",
-        description=("Import MoMask's released checkpoints as a masked-family bundle with the release's decoding "
-                     "settings (10 steps, guidance 4 and 5, top-k 10%)."))
-    momask.add_argument("checkpoints", type=Path, nargs="?", default=None, metavar="CHECKPOINTS_DIR",
-                        help="MoMask's checkpoints/t2m (or checkpoints/kit) folder as the release unpacks it")
-    files = momask.add_argument_group("files (each overrides the folder lookup)")
-    for flag, default in (("vq", "rvq_*/model/net_best_fid.tar"), ("mean", "rvq_*/meta/mean.npy"),
-                          ("std", "rvq_*/meta/std.npy"), ("masked", "t2m_nlayer8_*/model/latest.tar"),
-                          ("residual", "tres_nlayer8_*/model/net_best_fid.tar"),
-                          ("length", "length_estimator/model/finest.tar")):
-        files.add_argument(f"--{flag}", type=Path, default=None, metavar="FILE", help=f"default: {default}")
-    momask.add_argument("--heads", type=int, default=6, help="attention heads (not stored in the weights; release: 6)")
-    momask.add_argument("--name", default=None, help="bundle name (default momask-humanml3d / momask-kit)")
-    add_common_options(momask)
-    momask.set_defaults(func=run_momask)
+    """`t2m import momask` and `t2m import mogents`: a release folder, one option per file."""
+    for release, (summary, description, folder, folder_help, defaults) in RELEASES.items():
+        parser = sources.add_parser(release, help=summary, description=description)
+        parser.add_argument("checkpoints", type=Path, nargs="?", default=None, metavar=folder, help=folder_help)
+        files = parser.add_argument_group("files (each overrides the folder lookup)")
+        for flag, default in zip(FILE_ROLES, defaults):
+            files.add_argument(f"--{flag}", type=Path, default=None, metavar="FILE", help=f"default: {default}")
+        parser.add_argument("--heads", type=int, default=6,
+                            help="attention heads (not stored in the weights; release: 6)")
+        parser.add_argument("--name", default=None, help=f"bundle name (default {release}-humanml3d / {release}-kit)")
+        add_common_options(parser)
+        parser.set_defaults(func=run_momask if release == "momask" else run_mogents)
 
 
 def run_momask(args: argparse.Namespace) -> int:
-    import logging
-
     from t2m.export.momask_import import import_momask
 
+    return _run_release("MoMask", import_momask, args)
+
+
+def run_mogents(args: argparse.Namespace) -> int:
+    from t2m.export.mogents_import import import_mogents
+
+    return _run_release("MoGenTS", import_mogents, args)
+
+
+def _run_release(release: str, importer, args: argparse.Namespace) -> int:
+    import logging
+
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    files = {role: getattr(args, role) for role in ("vq", "mean", "std", "masked", "residual", "length")}
-    manifest, checks = import_momask(args.checkpoints, args.output, clip_weights=args.clip, files=files,
-                                     heads=args.heads, name=args.name, version=args.version,
-                                     check_parity=not args.skip_parity, allow_pickle=args.allow_pickle)
+    files = {role: getattr(args, role) for role in FILE_ROLES}
+    manifest, checks = importer(args.checkpoints, args.output, clip_weights=args.clip, files=files,
+                                heads=args.heads, name=args.name, version=args.version,
+                                check_parity=not args.skip_parity, allow_pickle=args.allow_pickle)
     print(json.dumps({"parity": checks.parity}, indent=2))
     m = manifest["masked"]
-    print(f"imported MoMask ({manifest['residual_layers']} quantiser layers, {m['steps']} steps, guidance "
-          f"{m['guidance']:g} / {m['residual_guidance']:g}, top-k {m['top_k']} / {m['residual_top_k']}, length "
-          f"estimator {'yes' if m['length_estimator'] else 'no'}) into {args.output} (verified)")
+    branches = "".join(f", + branch {b['name']} (top-k {b['top_k']} / {b['residual_top_k']})"
+                       for b in m.get("branches", []))
+    print(f"imported {release} ({manifest['residual_layers']} quantiser layers, {m['steps']} steps, guidance "
+          f"{m['guidance']:g} / {m['residual_guidance']:g}, top-k {m['top_k']} / {m['residual_top_k']}{branches}, "
+          f"length estimator {'yes' if m['length_estimator'] else 'no'}) into {args.output} (verified)")
     return 0
 
 

@@ -25,14 +25,15 @@ from t2m.model.networks.token_transformer import OutputProcess, TokenMapEncoder,
 
 
 class ResidualTransformer(TokenMapEncoder):
-    """(codes [B, T, C, R'], layer q [B], cond [B, Dt], length [B]) -> logits [B, T, C, K + 1] for layer q."""
+    """(codes [B, T, C, R'], layer q [B], cond [B, Dt], length [B]) -> logits [B, T, C, K + 1] for layer q
+    ([B, T, C, K + 2] with ``residual_mask_class``)."""
 
     def __init__(self, config: TokenTransformerConfig | None = None) -> None:
         config = config or TokenTransformerConfig()
         if config.residual_layers < 2:
             raise ValueError(f"a residual transformer needs residual_layers >= 2, got {config.residual_layers}")
         super().__init__(config, prefix_rows=2, spatial_adds=True)
-        vocab, layers = config.codebook_size + 1, config.residual_layers
+        vocab, layers = self.vocabulary, config.residual_layers
 
         def table(count: int) -> nn.Parameter:
             return nn.Parameter(torch.randn(count, vocab, config.code_dim) * 0.02)
@@ -50,7 +51,17 @@ class ResidualTransformer(TokenMapEncoder):
 
     @property
     def pad_id(self) -> int:
-        return self.config.codebook_size
+        """K (MoMask), or K + 1 when the mask id K is a class too (MoGenTS's 2D residual model)."""
+        return self.config.codebook_size + int(self.config.residual_mask_class)
+
+    @property
+    def mask_id(self) -> int | None:
+        """The drawable mask class (K) of MoGenTS's 2D residual model; None when there is none."""
+        return self.config.codebook_size if self.config.residual_mask_class else None
+
+    @property
+    def vocabulary(self) -> int:
+        return self.pad_id + 1
 
     def input_tables(self) -> torch.Tensor:
         """[R-1, K+1, code_dim]: E_0..E_{R-2}, the embeddings of layers 0..R-2."""

@@ -55,6 +55,12 @@ class TokenTransformerConfig(ConfigDict):
     spatial_attention: bool = True
     temporal_attention: bool = True
     temporal_mask_cond: bool = False  # True: the temporal stack cannot see the text row (MoGenTS's release does this)
+    # MoGenTS's released 2D residual model (facts §2.5): its spatial stack adds positions from row 0 (not after the
+    # prefix rows), its spatial output is laid out as one motion per call does without a transpose
+    # (release_spatial_layout), and it scores K + 2 classes (mask id K and pad K + 1 can both be drawn)
+    spatial_rows_from_zero: bool = False
+    spatial_scramble: bool = False
+    residual_mask_class: bool = False
     share_weight: bool = True  # residual: embedding of layer k = classifier of layer k (MoMask's --share_weight)
 
     def __post_init__(self) -> None:
@@ -84,6 +90,19 @@ def sinusoid_table_2d(rows: int, columns: int, dim: int) -> torch.Tensor:
     column = sinusoid_table(columns, half)[:, 0]  # [columns, half]
     row = sinusoid_table(rows, half)[:, 0]  # [rows, half]
     return torch.cat([column[None].expand(rows, -1, -1), row[:, None].expand(-1, columns, -1)], dim=-1)
+
+
+def release_spatial_layout(spatial: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
+    """MoGenTS's released residual model re-lays its spatial output [T, C] without the transpose back: with one
+    motion of L rows per call (its demo's B = 1), slot n = t' C + j' receives the output computed at (t, j) =
+    (n mod L, n div L). Done per batch row with that row's own L, by one gather (static shapes, so it exports);
+    rows past L keep their own (zero) output. spatial [B, T, C, D], length [B] -> [B, T, C, D]."""
+    batch, rows, columns, dim = spatial.shape
+    slot = torch.arange(rows * columns, device=spatial.device)[None, :]
+    rows_of = length.clamp(min=1)[:, None]
+    source = torch.where(slot < rows_of * columns, (slot % rows_of) * columns + slot // rows_of, slot)
+    flat = spatial.reshape(batch, rows * columns, dim)
+    return torch.gather(flat, 1, source[..., None].expand(batch, rows * columns, dim)).view(batch, rows, columns, dim)
 
 
 class PositionalEncoding(nn.Module):
@@ -216,6 +235,11 @@ class TokenMapEncoder(nn.Module):
             return self.position_drop(torch.cat([x[:, : self.prefix_rows], motion], dim=1))
         return self.position_drop(x + self.position2d_enc.pe[: x.shape[1], : x.shape[2]][None])
 
+    def _positions_from(self, motion: torch.Tensor, first_row: int) -> torch.Tensor:
+        """motion [B, T, C, D] (2D) plus the positions of rows first_row.., dropout."""
+        return self.position_drop(motion + self.position2d_enc.pe[first_row : first_row + motion.shape[1],
+                                                                  : motion.shape[2]][None])
+
     def check_shapes(self, tokens: torch.Tensor, cond: torch.Tensor, length: torch.Tensor) -> None:
         c = self.config
         if tokens.shape[1] > c.max_tokens or tokens.shape[2] != c.columns:
@@ -248,10 +272,13 @@ class TokenMapEncoder(nn.Module):
         motion = x.reshape(batch, p + rows, columns, dim)[:, p:]
         real = valid[:, :, None, None]
         if self.config.spatial_attention:  # the C tokens of each frame attend to each other
-            inputs = self._positions(torch.cat([prefix_rows, motion], dim=1))[:, p:]
+            inputs = self._positions_from(motion, 0 if self.config.spatial_rows_from_zero else p)
             spatial = self.seqTransEncoder2(inputs.reshape(batch * rows, columns, dim)).view(batch, rows, columns, dim)
             if self.spatial_adds:
-                motion = motion + torch.where(real, spatial, torch.zeros_like(spatial))
+                spatial = torch.where(real, spatial, torch.zeros_like(spatial))
+                if self.config.spatial_scramble:
+                    spatial = release_spatial_layout(spatial, length)
+                motion = motion + spatial
             else:
                 motion = torch.where(real, spatial, inputs)
         if self.config.temporal_attention:  # each column along time, behind the prefix rows

@@ -12,11 +12,12 @@ uses the manifest's guidance and top-k, and the request's temperature unless the
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 import onnxruntime as ort
 
-from t2m.decoding.masked import MaskedJob, sample_token_maps
+from t2m.decoding.masked import MaskedJob, sample_branch_maps, sample_token_maps
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 from t2m.service.engine.text import TextEncoder
@@ -44,11 +45,20 @@ class MaskedCodes:
         if settings is None:  # pragma: no cover - the engine picks this class for masked bundles only
             raise ValueError("a masked bundle needs its 'masked' block")
         self.settings = settings
-        self.masked = OnnxMaskedStep(bundle.sessions["masked.onnx"], settings.columns, settings.mask_id)
-        residual = bundle.sessions.get("residual.onnx")
-        self.residual = (None if residual is None
-                         else OnnxResidualStep(residual, manifest.residual_layers, settings.pad_id))
+        self.masked, self.residual = self._steps(bundle, ("masked.onnx", "residual.onnx"), settings.columns,
+                                                 settings.mask_id, settings.pad_id, settings.residual_mask_class)
+        self.branches = [self._steps(bundle, b.graphs, b.columns, b.mask_id, b.pad_id, b.residual_mask_class)
+                         for b in settings.branches]
         self.length: ort.InferenceSession | None = bundle.sessions.get("length.onnx")
+
+    @staticmethod
+    def _steps(bundle: Bundle, files: tuple[str, str], columns: int, mask_id: int, pad_id: int,
+               mask_class: bool) -> tuple[OnnxMaskedStep, OnnxResidualStep | None]:
+        """One generator's steps: its masked graph, and its residual graph when the VQ has more than one layer."""
+        residual = bundle.sessions.get(files[1])
+        return (OnnxMaskedStep(bundle.sessions[files[0]], columns, mask_id),
+                None if residual is None else OnnxResidualStep(residual, bundle.manifest.residual_layers, pad_id,
+                                                               mask_id if mask_class else None))
 
     def _check_durations(self, request: GenerationRequest, limits: ModelLimits) -> None:
         """Before any graph runs: each duration fits max_tokens; a null one needs the length estimator."""
@@ -81,13 +91,20 @@ class MaskedCodes:
         conds = text.encode([s.text for s in request.segments])
         rng = np.random.default_rng(request.seed)
         s = self.settings
-        return MaskedJob(conds=conds, rows=self._rows(request, conds, rng, limits), rng=rng, steps=s.steps,
-                         guidance=request.guidance, residual_guidance=s.residual_guidance,
-                         temperature=request.temperature,
-                         top_k=request.top_k if request.top_k is not None else s.top_k,
-                         residual_top_k=s.residual_top_k, residual_temperature=s.residual_temperature,
-                         cancelled=lambda: request.cancelled)
+        job = MaskedJob(conds=conds, rows=self._rows(request, conds, rng, limits), rng=rng, steps=s.steps,
+                        guidance=request.guidance, residual_guidance=s.residual_guidance,
+                        temperature=request.temperature if s.temperature is None else s.temperature,
+                        top_k=request.top_k if request.top_k is not None else s.top_k,
+                        residual_top_k=s.residual_top_k, residual_temperature=s.residual_temperature,
+                        cancelled=lambda: request.cancelled)
+        # further generators: the same segments, rows and generator, their own top-k (a request's top_k, like its
+        # guidance and temperature, applies to every generator's mask stage)
+        job.branches = [replace(job, top_k=request.top_k if request.top_k is not None else branch.top_k,
+                                residual_top_k=branch.residual_top_k, branches=[]) for branch in s.branches]
+        return job
 
     def sample(self, jobs: Sequence[MaskedJob], max_tokens: int,
                on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
-        return sample_token_maps(self.masked, self.residual, jobs, on_step)
+        if not self.branches:
+            return sample_token_maps(self.masked, self.residual, jobs, on_step)
+        return sample_branch_maps([(self.masked, self.residual), *self.branches], jobs, on_step)

@@ -41,10 +41,11 @@ class OnnxMaskedStep:
 
 
 class OnnxResidualStep:
-    """residual.onnx: (codes [B, T, C, R], layer [B], cond [B, Dt], length [B]) -> logits of layer q."""
+    """residual.onnx: (codes [B, T, C, R], layer [B], cond [B, Dt], length [B]) -> logits of layer q (``mask_id``:
+    see t2m.decoding.masked.ResidualStep)."""
 
-    def __init__(self, session: ort.InferenceSession, layers: int, pad_id: int) -> None:
-        self.session, self.layers, self.pad_id = session, layers, pad_id
+    def __init__(self, session: ort.InferenceSession, layers: int, pad_id: int, mask_id: int | None = None) -> None:
+        self.session, self.layers, self.pad_id, self.mask_id = session, layers, pad_id, mask_id
 
     def __call__(self, codes: np.ndarray, layer: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:
         (logits,) = self.session.run(["logits"], {"codes": codes, "layer": layer, "cond": cond, "length": length})
