@@ -39,3 +39,16 @@ def test_unknown_command_and_no_command_exit_non_zero(capsys: pytest.CaptureFixt
     assert raised.value.code == 2
     assert "invalid choice" in capsys.readouterr().err
     assert main([]) == 2
+
+
+def test_embedded_bundles_are_named_by_their_folder(tmp_path, monkeypatch) -> None:
+    from t2m.bundles import DEFAULT_BUNDLE, EMBEDDED_BUNDLES, resolve_bundle
+    from t2m.cli.commands.serve import model_environment
+
+    assert EMBEDDED_BUNDLES["default"] == DEFAULT_BUNDLE
+    monkeypatch.chdir(tmp_path)
+    env = model_environment([Path("default")])
+    assert env == {"T2M_BUNDLE_PATH": str(DEFAULT_BUNDLE), "T2M_EXTRA_MODEL_DIRS": ""}
+    (tmp_path / "default").mkdir()  # a directory of that name wins over the embedded bundle
+    assert resolve_bundle("default") == Path("default")
+    assert resolve_bundle("no-such-bundle") == Path("no-such-bundle")

@@ -25,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-release", action="store_true", help="skip the 228M-parameter T2M-GPT release size")
     parser.add_argument("--bundle", type=Path, action="append", default=None, metavar="DIR",
                         help="time whole requests on this bundle (repeat to compare models in one run; "
-                             "'default' = the embedded default model)")
+                             "an embedded bundle by its name: default, masked)")
     parser.add_argument("--repeats", type=int, default=5, help="--bundle: requests timed per case (default 5)")
     parser.set_defaults(func=run)
 
@@ -46,13 +46,13 @@ def run(args: argparse.Namespace) -> int:
 
 def run_bundles(args: argparse.Namespace) -> int:
     from t2m.bundle import BundleError
-    from t2m.bundles import DEFAULT_BUNDLE
+    from t2m.bundles import resolve_bundle
     from t2m.cli.main import CliError
     from t2m.export.bundle_bench import run_bundle_bench
 
     if args.repeats < 1:
         raise CliError("--repeats must be >= 1")
-    paths = [DEFAULT_BUNDLE if str(path) == "default" else path for path in args.bundle]
+    paths = [resolve_bundle(path) for path in args.bundle]
     for path in paths:
         if not (path / "manifest.json").is_file():
             raise CliError(f"--bundle {path}: no manifest.json there (not a bundle directory)")

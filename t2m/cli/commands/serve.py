@@ -18,7 +18,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="model bundle directory; repeat to serve several (the first is the default, a request "
                              "picks another by its manifest name). Given, it names every model served "
                              "(T2M_EXTRA_MODEL_DIRS is replaced); default: T2M_MODEL_DIR (+ T2M_EXTRA_MODEL_DIRS), "
-                             "else the embedded t2m/bundles/default")
+                             "else the embedded t2m/bundles/default. An embedded bundle can be named by its folder "
+                             "name: --model default --model masked")
     parser.add_argument("--workers", type=int, default=1,
                         help="uvicorn worker processes, each with its own model copies and /metrics (default 1)")
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
@@ -28,9 +29,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def model_environment(models: Sequence[Path]) -> dict[str, str]:
     """The T2M_* variables that carry `--model` choices into every worker process: the first bundle is the default
     (T2M_BUNDLE_PATH, which settings read first), the others T2M_EXTRA_MODEL_DIRS (comma-separated)."""
+    from t2m.bundles import resolve_bundle
     from t2m.cli.main import CliError
 
-    paths = [str(Path(model).resolve()) for model in models]
+    paths = [str(resolve_bundle(model).resolve()) for model in models]
     for path in paths:
         if "," in path:
             raise CliError(f"--model {path}: a bundle path with a comma cannot be served next to others "
