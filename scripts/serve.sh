@@ -1,9 +1,17 @@
 #!/usr/bin/env bash
-# One command from a fresh clone to a running service on the embedded default model (no torch installed).
-# Usage: scripts/serve.sh [t2m serve options]   (defaults: --host 0.0.0.0 --port 8000)
+# One command from a fresh clone to a running service on the embedded models (no torch installed): the default GPT
+# model, and the masked model beside it (a request picks it with "model": "t2m-bandai-masked-minilm").
+# Usage: scripts/serve.sh [t2m serve options]   (defaults: --host 0.0.0.0 --port 8000 --model default --model masked;
+# a --model option, T2M_MODEL_DIR or T2M_EXTRA_MODEL_DIRS replaces the choice of models)
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 venv="${T2M_VENV:-$repo/.venv-serve}"
 "$repo/scripts/setup_env.sh" "$venv" ""
 if [ "$#" -eq 0 ]; then set -- --host 0.0.0.0 --port 8000; fi
+case " $* " in
+  *" --model "*|*" --model="*) ;;
+  *) if [ -z "${T2M_MODEL_DIR:-}${T2M_BUNDLE_PATH:-}${T2M_EXTRA_MODEL_DIRS:-}" ]; then
+       set -- "$@" --model default --model masked
+     fi ;;
+esac
 exec "$venv/bin/t2m" serve "$@"

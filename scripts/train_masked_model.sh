@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
-# The masked family (issue 14, MoGenTS's joint tokens + MoMask's residual design) trained on Bandai-Namco, sized so
-# that all stages take about 2 hours on this project's 2-core CPU machine. NOT run yet: the wall times below are
-# estimates from the throughput measured in short runs (see the end of this file); record the real ones here and in
-# the model card after the run. Run from the repository root in the training environment; every stage writes
-# progress, train.log, log.csv and curves.png in its run directory and can be continued with --resume.
+# The masked family (issue 14, MoGenTS's joint tokens + MoMask's residual design) trained on Bandai-Namco: the exact
+# commands that produced t2m/bundles/masked (0.1.0) on 2026-11-25, on this project's 2-core CPU machine. The machine
+# was shared with other work during the run (the VQ stage ran at about half its idle speed), so the wall times noted
+# at each stage are upper bounds. Steps were cut from the first plan (VQ 3600, masked 3000, residual 1400) to fit one
+# session; the validation losses were still falling when each stage stopped (see the model card). Run from the
+# repository root in the training environment; every stage writes progress, train.log, log.csv and curves.png in
+# its run directory and can be continued with --resume.
 set -euo pipefail
 DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_default_model.sh, first command)
 RUNS="${RUNS:-runs}"
@@ -12,7 +14,7 @@ TEXT="$RUNS/text_minilm.npz"          # the GPT's caption cache: shared, compute
 # 1. Joint VQ-VAE: 22 joints x 12 features as a 2D map (padded to 24 joints), 2D convolutions width 128, time and
 #    joints halved twice -> 6 token columns per 4 frames; 4 residual quantiser layers of 256 codes (dim 128), EMA +
 #    dead-code reset, quantiser dropout 0.2. Windows, action balance and bone term as the default 1D VQ's.
-#    Measured 1.63 steps/s (104 windows/s) -> ~37 min for 3600 steps.
+#    Ran 2800 steps: 63.9 min wall (about 1.85 steps/s on an idle machine, ~25 min).
 t2m train joint-vq --data "$DATA" --out "$RUNS/joint_vq" --steps 2800 --batch-size 64 --window 32 --width 128 \
   --code-dim 128 --nb-code 256 --down-j 2 --residual-layers 4 --quantizer-dropout 0.2 --lr 2e-4 \
   --warmup-steps 300 --lr-milestones 0.8 --balance-power 0.5 --bone-weight 0.5 --log-every 50 --val-every 500 \
@@ -21,20 +23,20 @@ t2m train joint-vq --data "$DATA" --out "$RUNS/joint_vq" --steps 2800 --batch-si
 # 2. Masked transformer over the first layer: 2D positions, joint-time + spatial + temporal stacks of 2 layers
 #    each (width 256, 4 heads, ff 512), MiniLM condition, temporal-spatial cosine masking with BERT replacement,
 #    condition dropout 0.1, condition noise 0.8 and action balance 0.3 as the default GPT's.
-#    Encoding every clip with the VQ once: ~3 min. Measured 1.15 steps/s (37 motions/s) -> ~44 min for 3000 steps.
-t2m train masked --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/masked" --steps 2400 --batch-size 32 \
-  --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 200 \
+#    Encoding every clip with the VQ once: ~2 min. Ran 1600 steps: 28.5 min wall (+ 2 min encoding).
+t2m train masked --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/masked" --steps 1600 --batch-size 32 \
+  --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 150 \
   --lr-milestones 0.8 --cond-drop 0.1 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
-  --log-every 25 --val-every 250 --save-every 250 --threads 2 --seed 0
+  --log-every 25 --val-every 200 --save-every 200 --threads 2 --seed 0
 
 # 3. Residual transformer for layers 1..3, one pass each: the same shape, shared embedding/classifier tables,
-#    condition dropout 0.2; reuses the masked run's codes. Measured 1.06 steps/s -> ~22 min for 1400 steps.
-t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" --steps 1100 --batch-size 32 \
-  --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 100 \
+#    condition dropout 0.2; reuses the masked run's codes. Ran 700 steps: 10.4 min wall.
+t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" --steps 700 --batch-size 32 \
+  --latent 256 --heads 4 --layers 2 --ff-size 512 --dropout 0.1 --max-tokens 50 --lr 2e-4 --warmup-steps 70 \
   --lr-milestones 0.8 --cond-drop 0.2 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
-  --codes-cache "$RUNS/masked" --log-every 25 --val-every 250 --save-every 250 --threads 2 --seed 0
+  --codes-cache "$RUNS/masked" --log-every 25 --val-every 200 --save-every 200 --threads 2 --seed 0
 
-# 4. Length estimator (free length): MiniLM feature -> 0..50 token rows. Measured ~230 steps/s -> ~15 s.
+# 4. Length estimator (free length): MiniLM feature -> 0..50 token rows. Ran 3000 steps: 14 s.
 t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 256 --hidden 256 --max-tokens 50 \
   --text-cache "$TEXT" --log-every 100 --val-every 500 --save-every 500 --threads 2 --seed 0
 
@@ -44,15 +46,21 @@ t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 2
 
 # 5. Evaluation (issue 14 item 3): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
 #    GPT's table (scripts/train_default_model.sh; its evaluator run is needed here), so the two tables compare.
-#    Generation runs the service's loop (t2m.decoding.masked): 10 re-masking steps, masked-stage guidance 1 and 4,
-#    residual stage guidance 5 (MoMask's); --length adds rows at the length estimator's draws. The VQ
-#    reconstruction row's root-relative MPJPE is the joint VQ's (the goal: <= 30 mm; the 1-layer 1D VQ: 42 mm).
-#    Estimated from one guided batch of 128 motions of random lengths at these sizes, random weights (70 s, 2 threads,
-#    shared machine; a batch runs at its longest map, eval batches by length, which about halves it): ~40-60 min for
-#    3 repeats. Not run yet.
+#    Generation runs the service's loop (t2m.decoding.masked): 10 re-masking steps, masked-stage guidance 4 (the
+#    bundle's default; guidance 1 was left out to fit the session), residual stage guidance 5 (MoMask's); --length
+#    adds rows at the length estimator's draws. The VQ reconstruction row's root-relative MPJPE is the joint VQ's.
+#    Ran in 1518 s (25 min).
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/joint_vq" --masked "$RUNS/masked" \
-  --residual "$RUNS/residual" --length "$RUNS/length" --guidance 1 4 --steps 10 --residual-guidance 5 --repeats 3 \
+  --residual "$RUNS/residual" --length "$RUNS/length" --guidance 4 --steps 10 --residual-guidance 5 --repeats 3 \
   --mm-texts 30 --mm-repeats 10 --streams 100 --text-cache "$TEXT" --threads 2 --out "$RUNS/eval_masked.md"
+
+# 6. The bundle (int8 text encoder and token graphs: the two embedded bundles must stay under 100 MB; the card says
+#    what int8 costs), its caption index, the probes. The card (docs/model_card_masked.md) carries the tables above.
+t2m export --family masked --vq "$RUNS/joint_vq" --masked "$RUNS/masked" --residual "$RUNS/residual" \
+  --length "$RUNS/length" --steps 10 --guidance 4 --residual-guidance 5 --int8 all --name t2m-bandai-masked-minilm \
+  --version 0.1.0 --model-card docs/model_card_masked.md -o t2m/bundles/masked
+t2m index-captions t2m/bundles/masked --data "$DATA"
+python benchmarks/probes.py --bundle t2m/bundles/masked --seeds 5 --json-out "$RUNS/probes_masked.json"
 
 # Throughput, measured on 2026-11-25 with short runs (60-80 steps, log.csv samples_per_s of steps 20-80, which
 # count data + forward + backward + update) on the project machine (2 cores, torch 2.13.0+cpu), commands as above

@@ -66,8 +66,9 @@ def test_wheel_holds_one_package_the_viewer_and_the_default_model(installed):
     wheel = installed[2]
     names = zipfile.ZipFile(wheel).namelist()
     assert {name.split("/")[0] for name in names} == {"t2m", wheel.name.split("-py3")[0] + ".dist-info"}
-    manifest = json.loads((REPO / "t2m" / "bundles" / "default" / "manifest.json").read_text())
-    assert {f"t2m/bundles/default/{name}" for name in [*manifest["files"], "manifest.json"]} <= set(names)
+    for bundle in ("default", "masked"):
+        manifest = json.loads((REPO / "t2m" / "bundles" / bundle / "manifest.json").read_text())
+        assert {f"t2m/bundles/{bundle}/{name}" for name in [*manifest["files"], "manifest.json"]} <= set(names)
     assert "t2m/service/static/index.html" in names
 
 
