@@ -3,8 +3,9 @@
 Per request: its texts through the text graph as one batch; its segments' codes sampled in lockstep with every other
 request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
 motion.features. Nothing here knows about HTTP. The family-specific part (which codes, from which graphs) is a codes
-object: GptCodes (t2m.decoding.gpt) or MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]); the text
-encoding, the unknown-text check, the single decode and the joints are shared.
+object: GptCodes (t2m.decoding.gpt), MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]) or HiFiGPTCodes
+(t2m.decoding.hifigpt, code maps [steps, R]); the text encoding, the unknown-text check, the single decode and the
+joints are shared.
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.gpt_codes import GptCodes
+from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
 from t2m.service.engine.masked_codes import MaskedCodes
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.text import TextEncoder, load_tokenizer
@@ -33,6 +35,9 @@ from t2m.service.engine.types import (
 )
 
 __all__ = ["OnnxEngine"]
+
+# manifest family -> the engine's codes object for it
+CODES = {"gpt": GptCodes, "masked": MaskedCodes, "hifigpt": HiFiGPTCodes}
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +58,7 @@ class OnnxEngine:
             raise BundleError(f"manifest.json: field 'num_joints' is {manifest.num_joints} but skeleton "
                               f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
-        self.codes: GptCodes | MaskedCodes = MaskedCodes(bundle) if manifest.family == "masked" else GptCodes(bundle)
+        self.codes: GptCodes | MaskedCodes | HiFiGPTCodes = CODES[manifest.family](bundle)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
         self.unknown_text = unknown_text
         info = manifest.caption_index
@@ -69,7 +74,8 @@ class OnnxEngine:
             parents=tuple(int(p) for p in self.skeleton.parents),
             details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
                         if key in raw}, "unknown_text": self._unknown_text_details(),
-                     **({"family": manifest.family, "masked": raw["masked"]} if manifest.masked is not None else {})})
+                     **({"family": manifest.family, manifest.family: raw[manifest.family]}
+                        if manifest.family != "gpt" else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
