@@ -28,7 +28,7 @@ from t2m.export.bundle import (
 from t2m.export.exporter import GROSS_PARITY_ERROR, TextSource
 from t2m.export.onnx_decoder import export_decoder
 from t2m.export.onnx_hifigpt import export_residual_step, export_temporal_step, rollout_parity
-from t2m.model.networks.hifigpt import HiFiGPT, vq_codebooks, vq_fields
+from t2m.model.networks.hifigpt import HiFiGPT, check_fits_vq, vq_codebooks
 from t2m.model.networks.vqvae import MotionVQVAE
 
 log = logging.getLogger(__name__)
@@ -65,11 +65,7 @@ def check_hifigpt_models(vq: MotionVQVAE, model: HiFiGPT) -> None:
     if vq.config.quantizer != "residual":
         raise ValueError(f"a hifigpt bundle needs a residual VQ (its decoder takes [B, T, R] codes), got quantizer "
                          f"{vq.config.quantizer!r}")
-    c = model.config
-    fields = vq_fields(vq.config.to_dict())
-    mine = {key: getattr(c, key) for key in fields}
-    if mine != fields:
-        raise ValueError(f"the HiFiGPT was built for a VQ with {mine}, this VQ has {fields}")
+    check_fits_vq(model.config, vq.config.to_dict())
     if not np.allclose(vq_codebooks(vq).numpy(), model.codebooks.numpy(), atol=1e-6):
         log.warning("the HiFiGPT's codebooks differ from the VQ's: its inputs were not the codes' vectors")
 
@@ -165,8 +161,7 @@ def export_hifigpt_from_runs(
     """A verified hifigpt bundle from a residual vq run and a hifigpt run. ``text_source`` replaces building the
     run's text encoder (tests)."""
     from t2m.export.exporter import _normalisation, recorded_text_source, run_training_data
-    from t2m.export.masked_exporter import _check_trained_on
-    from t2m.model.evaluation.masked_family import load_run
+    from t2m.model.evaluation.masked_family import check_trained_on, load_run
     from t2m.model.training.checkpoint import read_run_config
 
     vq_run, hifigpt_run = Path(vq_run), Path(hifigpt_run)
@@ -174,7 +169,7 @@ def export_hifigpt_from_runs(
     for run, found, expected in ((vq_run, vq_record, "vq"), (hifigpt_run, record, "hifigpt")):
         if found["kind"] != expected:
             raise ValueError(f"{run}/config.json: expected a {expected} checkpoint, found {found['kind']!r}")
-    _check_trained_on(hifigpt_run, vq_run, record)
+    check_trained_on(hifigpt_run, vq_run)
     vq = load_run(vq_run, "vq", MotionVQVAE)
     model = load_run(hifigpt_run, "hifigpt", HiFiGPT)
     check_hifigpt_models(vq, model)

@@ -219,12 +219,6 @@ def _load_vq(vq_run: Path) -> JointVQVAE | MotionVQVAE:
     raise ValueError(f"{vq_run}/config.json: --vq must be a joint_vq or vq run, found {kind!r}")
 
 
-def _check_trained_on(run: Path, vq_run: Path, record: Mapping[str, Any]) -> None:
-    recorded = record.get("data", {}).get("vq_run")
-    if recorded and Path(recorded).exists() and Path(recorded).resolve() != vq_run.resolve():
-        raise ValueError(f"{run}: trained on the codes of {recorded}, not of --vq {vq_run}")
-
-
 def export_masked_from_runs(
     vq_run: str | Path, masked_run: str | Path, out_dir: str | Path, *, residual_run: str | Path | None = None,
     length_run: str | Path | None = None, name: str | None = None, version: str = "0.1.0",
@@ -234,7 +228,7 @@ def export_masked_from_runs(
     """A verified masked bundle from a joint_vq (or 1D vq) run, a masked run, a residual run (when the VQ has more
     than one layer) and an optional length run. ``text_source`` replaces building the run's text encoder (tests)."""
     from t2m.export.exporter import _normalisation, recorded_text_source, run_training_data
-    from t2m.model.evaluation.masked_family import load_run
+    from t2m.model.evaluation.masked_family import check_trained_on, load_run
     from t2m.model.training.checkpoint import read_run_config
 
     vq_run, masked_run = Path(vq_run), Path(masked_run)
@@ -247,7 +241,7 @@ def export_masked_from_runs(
     vq = _load_vq(vq_run)
     for key in ("masked", "residual"):
         if key in records:
-            _check_trained_on(Path(str(runs[key])), vq_run, records[key])
+            check_trained_on(str(runs[key]), vq_run)
     masked = load_run(masked_run, "masked", MaskedTransformer)
     residual = None if residual_run is None else load_run(residual_run, "residual", ResidualTransformer)
     length = None if length_run is None else load_run(length_run, "length", LengthEstimator)

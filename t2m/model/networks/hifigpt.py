@@ -227,6 +227,14 @@ def vq_fields(vq_config: dict) -> dict:
             "shared_codebook": bool(vq_config.get("shared_codebook", False)) and residual}
 
 
+def check_fits_vq(config: HiFiGPTConfig, vq_config: dict, names: tuple[str, str] = ("the HiFiGPT", "the VQ")) -> None:
+    """Refuse a VQ whose codebook size, depth, code_dim or codebook sharing differ from what the GPT was built for."""
+    fields = vq_fields(vq_config)
+    mine = {key: getattr(config, key) for key in fields}
+    if mine != fields:
+        raise ValueError(f"{names[0]} was built for a VQ with {mine}, {names[1]} has {fields}")
+
+
 def vq_codebooks(vq: nn.Module) -> torch.Tensor:
     """A MotionVQVAE's codebooks as HiFiGPT.codebooks holds them: [books, K, D] (a single-layer VQ: [1, K, D])."""
     from t2m.model.networks.quantizers import ResidualQuantizer
