@@ -33,7 +33,7 @@ from t2m.decoding.lockstep import (
 )
 from t2m.decoding.tokens import draw_stops, draw_tokens
 
-__all__ = ["ResidualGptStep", "SamplingJob", "TemporalStep", "sample_code_rows"]
+__all__ = ["ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
 
 
 class TemporalStep(Protocol):
@@ -88,7 +88,7 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
         context = context[drop_finished(batch)]
         if not len(batch.owner):
             break
-        chosen = _depth_loop(residual, context, [(job, active) for job, active in going if active], batch.owner,
+        chosen = depth_loop(residual, context, [(job, active) for job, active in going if active], batch.owner,
                              depth, on_step)
         for s, row in chosen.items():
             batch.segments[s].tokens.append(row)
@@ -98,7 +98,7 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
     return results(batch, cancelled)
 
 
-def _depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple[SamplingJob, list[int]]],
+def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple[SamplingJob, list[int]]],
                 owner: np.ndarray, depth: int, on_step: Callable[[int], None] | None) -> dict[int, np.ndarray]:
     """The R codes of this time step for every going segment (rows = `owner`, contexts in row order)."""
     rows = row_maps(owner)
