@@ -15,10 +15,9 @@ graph (the R depth steps unrolled, with guidance, temperature and the inverse-CD
 from __future__ import annotations
 
 import argparse
-import statistics
 import tempfile
-import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +27,7 @@ from torch import nn
 from t2m.decoding.gpt import sample_codes
 from t2m.decoding.hifigpt import depth_loop, sample_code_rows
 from t2m.decoding.lockstep import SamplingJob
+from t2m.export.bench import median_ms
 from t2m.export.graph_export import export_graph, ort_session
 from t2m.export.machine import describe_machine
 from t2m.export.onnx_decoder import export_decoder
@@ -43,13 +43,9 @@ SECONDS = 10
 
 
 def _median_ms(fn: Callable[[], object], repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1000 * statistics.median(times)
+    """t2m bench's median after one warm-up call."""
+    fn()
+    return median_ms(fn, repeats)
 
 
 def _job(steps: int, guidance: float = 3.0) -> SamplingJob:
@@ -63,7 +59,8 @@ def _decoder_ms(down_t: int, codes_shape: tuple[int, ...], out: Path, repeats: i
     residual = len(codes_shape) == 2   # [steps, R]; the GPT's [tokens]
     vq = MotionVQVAE(VQConfig(nb_code=256, down_t=down_t, quantizer="residual" if residual else "ema_reset",
                               residual_layers=codes_shape[-1] if residual else 1)).eval()
-    path = export_decoder(vq, np.zeros(263, np.float32), np.ones(263, np.float32), out / f"decoder_{'_'.join(map(str, codes_shape))}.onnx")
+    name = "decoder_" + "_".join(map(str, codes_shape)) + ".onnx"
+    path = export_decoder(vq, np.zeros(263, np.float32), np.ones(263, np.float32), out / name)
     session = ort_session(path, threads)
     codes = np.zeros((1, *codes_shape), np.int64)
     return _median_ms(lambda: session.run(None, {"codes": codes}), repeats)
@@ -92,7 +89,7 @@ def compare(label: str, embed: int, heads: int, layers: int, depths: list[int], 
         residual_path = export_residual_step(model, out / f"residual_{label}_{depth}.onnx")
         temporal, residual = onnx_steps(model, temporal_path, residual_path, threads)
         steps = SECONDS * 20 // 8
-        ms = _median_ms(lambda: sample_code_rows(temporal, residual, [_job(steps)], 25), repeats)
+        ms = _median_ms(partial(sample_code_rows, temporal, residual, [_job(steps)], 25), repeats)
         decode_ms = _decoder_ms(3, (steps, depth), out, repeats, threads)
         print(f"| {label} | HiFiGPT {layers // 2} + {layers - layers // 2} layers, K 256, R {depth}, 8 frames/code"
               f" | {model.num_parameters() / 1e6:.1f} | {steps} x (1 + {depth}) | {ms / steps:.2f} "
@@ -139,7 +136,7 @@ def variants(depths: list[int], out: Path, repeats: int, threads: int) -> None:
         _, residual = onnx_steps(model, temporal_path, residual_path, threads)
         job = _job(1)
         context = np.random.default_rng(1).normal(size=(2, 512)).astype(np.float32)
-        per_call = _median_ms(lambda: depth_loop(residual, context, [(job, [0])], np.array([0, 0]), depth, None),
+        per_call = _median_ms(partial(depth_loop, residual, context, [(job, [0])], np.array([0, 0]), depth, None),
                               repeats)
         inputs = (torch.from_numpy(context), torch.tensor([3.0]), torch.tensor([1.0]), torch.rand(1, depth))
         loop_path = export_graph(DepthLoopGraph(model).eval(), inputs, out / f"loop_{depth}.onnx",
@@ -151,7 +148,7 @@ def variants(depths: list[int], out: Path, repeats: int, threads: int) -> None:
         feeds = {"context": context, "guidance": np.array([3.0], np.float32),
                  "inv_temperature": np.array([1.0], np.float32),
                  "uniforms": np.random.default_rng(0).random((1, depth)).astype(np.float32)}
-        whole = _median_ms(lambda: session.run(None, feeds), repeats)
+        whole = _median_ms(partial(session.run, None, feeds), repeats)
         print(f"| | {depth} | {per_call:.2f} | {whole:.2f} | {per_call / whole:.2f}x |")
 
 

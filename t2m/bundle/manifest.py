@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,7 @@ __all__ = [
     "FAMILIES",
     "FAMILY_FIELDS",
     "FORMAT_VERSION",
+    "HIFIGPT_FIELDS",
     "LENGTH_GRAPH",
     "MANIFEST_FIELDS",
     "MANIFEST_NAME",
@@ -31,7 +32,6 @@ __all__ = [
     "REQUIRED_FILES",
     "CaptionIndexInfo",
     "GptSettings",
-    "HIFIGPT_FIELDS",
     "HiFiGPTSettings",
     "Manifest",
     "MaskedSettings",
@@ -400,12 +400,8 @@ def _masked_settings(raw: dict[str, Any]) -> MaskedSettings:
 
 
 def _hifigpt_settings(raw: dict[str, Any]) -> HiFiGPTSettings:
-    h = raw["hifigpt"]
-    return HiFiGPTSettings(n_layer_temporal=h["n_layer_temporal"], n_layer_residual=h["n_layer_residual"],
-                           n_head=h["n_head"], head_dim=h["head_dim"], block_size=h["block_size"],
-                           length_conditioning=h["length_conditioning"],
-                           unconditional_branch=h["unconditional_branch"],
-                           default_guidance=float(h["default_guidance"]))
+    block = {f.name: raw["hifigpt"][f.name] for f in fields(HiFiGPTSettings)}
+    return HiFiGPTSettings(**{**block, "default_guidance": float(block["default_guidance"])})
 
 
 def parse_manifest(raw: dict[str, Any]) -> Manifest:

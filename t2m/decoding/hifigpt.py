@@ -21,16 +21,8 @@ from typing import Protocol
 
 import numpy as np
 
-from t2m.decoding.lockstep import (
-    SamplingJob,
-    check_targets,
-    drop_finished,
-    guided,
-    live_segments,
-    results,
-    row_maps,
-    start,
-)
+from t2m.decoding import lockstep
+from t2m.decoding.lockstep import SamplingJob
 from t2m.decoding.tokens import draw_stops, draw_tokens
 
 __all__ = ["ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
@@ -65,9 +57,9 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
                      max_tokens: int, on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
     """Per job, one int64 code map [steps, R] per segment (in order), or None for a job cancelled on the way.
     `on_step(rows)` is called after each network call."""
-    check_targets(jobs, max_tokens)
+    lockstep.check_targets(jobs, max_tokens)
     depth = temporal.depth
-    batch = start(jobs, temporal.empty_cache)
+    batch = lockstep.start(jobs, temporal.empty_cache)
     cancelled = [False] * len(jobs)
     position = 0
     while len(batch.owner):
@@ -75,17 +67,17 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
         context, stop, batch.past = temporal(batch.cond, codes_in, position, batch.length, batch.past)
         if on_step is not None:
             on_step(len(batch.owner))
-        rows = row_maps(batch.owner)
+        rows = lockstep.row_maps(batch.owner)
         going = []
-        for job, active in live_segments(batch, jobs, cancelled):
+        for job, active in lockstep.live_segments(batch, jobs, cancelled):
             free = [s for s in active if batch.segments[s].target is None and batch.segments[s].tokens]
             if free:
-                stops = draw_stops(guided(job, free, stop[:, None], rows)[:, 0], job.temperature, job.rng,
-                                   job.greedy)
+                guided = lockstep.guided(job, free, stop[:, None], rows)[:, 0]
+                stops = draw_stops(guided, job.temperature, job.rng, job.greedy)
                 for s, stopped in zip(free, stops):
                     batch.segments[s].done = bool(stopped)
             going.append((job, [s for s in active if not batch.segments[s].done]))
-        context = context[drop_finished(batch)]
+        context = context[lockstep.drop_finished(batch)]
         if not len(batch.owner):
             break
         chosen = depth_loop(residual, context, [(job, active) for job, active in going if active], batch.owner,
@@ -93,15 +85,15 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
         for s, row in chosen.items():
             batch.segments[s].tokens.append(row)
             batch.segments[s].reached(max_tokens)
-        drop_finished(batch)
+        lockstep.drop_finished(batch)
         position += 1
-    return results(batch, cancelled)
+    return lockstep.results(batch, cancelled)
 
 
 def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple[SamplingJob, list[int]]],
                 owner: np.ndarray, depth: int, on_step: Callable[[int], None] | None) -> dict[int, np.ndarray]:
     """The R codes of this time step for every going segment (rows = `owner`, contexts in row order)."""
-    rows = row_maps(owner)
+    rows = lockstep.row_maps(owner)
     chosen = {s: np.zeros(depth, dtype=np.int64) for _, active in going for s in active}
     past = residual.empty_cache(len(owner))
     code_in = np.zeros(len(owner), dtype=np.int64)
@@ -110,7 +102,8 @@ def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple
         if on_step is not None:
             on_step(len(owner))
         for job, active in going:
-            drawn = draw_tokens(guided(job, active, logits, rows), job.temperature, job.top_k, job.rng, job.greedy)
+            guided = lockstep.guided(job, active, logits, rows)
+            drawn = draw_tokens(guided, job.temperature, job.top_k, job.rng, job.greedy)
             for s, code in zip(active, drawn):
                 chosen[s][d] = code
         code_in = np.asarray([chosen[int(s)][d] for s in owner], dtype=np.int64)

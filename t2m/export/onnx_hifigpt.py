@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -165,10 +165,11 @@ def rollout_parity(model: HiFiGPT, temporal_path: str | Path, residual_path: str
     cond = np.random.default_rng(seed).normal(size=(4, c.text_dim)).astype(np.float32)
     targets: list[int | None] = [min(c.max_tokens, 6), None, min(c.max_tokens, 3), None]
 
-    def run(temporal: TemporalStep, residual: ResidualGptStep) -> list[np.ndarray]:
+    def run(temporal: Any, residual: Any) -> list[np.ndarray]:
         job = SamplingJob(conds=cond, targets=targets, guidance=guidance, temperature=1.0, top_k=None,
                           rng=np.random.default_rng(seed))
-        (maps,) = sample_code_rows(temporal, residual, [job], c.max_tokens)
+        steps = cast(TemporalStep, temporal), cast(ResidualGptStep, residual)
+        (maps,) = sample_code_rows(*steps, [job], c.max_tokens)
         assert maps is not None
         return maps
 

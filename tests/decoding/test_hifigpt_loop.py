@@ -86,7 +86,7 @@ def test_targets_end_exactly_and_a_free_segment_takes_at_least_one_step():
     never = ScriptedTemporal(cond_stop=-50.0, null_stop=-50.0)
     (maps,) = sample_code_rows(never, ScriptedResidual(), [_job([1], [None])], max_tokens=4)
     assert maps is not None and maps[0].shape == (4, R)
-    with pytest.raises(ValueError, match="outside 1..8"):
+    with pytest.raises(ValueError, match=r"outside 1\.\.8"):
         sample_code_rows(never, ScriptedResidual(), [_job([1], [9])], max_tokens=8)
 
 

@@ -24,8 +24,8 @@ torch.set_num_threads(1)
 
 def tiny(**overrides) -> HiFiGPT:
     torch.manual_seed(0)
-    settings = dict(codebook_size=16, depth=3, code_dim=8, embed=16, n_head=2, n_layer_temporal=2,
-                    n_layer_residual=1, max_tokens=8, text_dim=12, dropout=0.0)
+    settings = {"codebook_size": 16, "depth": 3, "code_dim": 8, "embed": 16, "n_head": 2, "n_layer_temporal": 2,
+                "n_layer_residual": 1, "max_tokens": 8, "text_dim": 12, "dropout": 0.0}
     return HiFiGPT(HiFiGPTConfig(**{**settings, **overrides})).eval()
 
 
@@ -78,7 +78,7 @@ def test_corruption_replaces_whole_time_steps():
     assert (changed[replaced] >= 5).all()                # a replaced one is a new row (a code may repeat by chance)
     assert not replaced[:, 15:].any() and (corrupted[:, 15:] == -1).all()
     assert 0.45 < replaced[:, :15].float().mean() < 0.55
-    per_motion, replaced = corrupt_steps(codes, torch.tensor([0.0, 1.0] * 32), 1000, generator)
+    _, replaced = corrupt_steps(codes, torch.tensor([0.0, 1.0] * 32), 1000, generator)
     assert not replaced[0::2].any() and replaced[1::2, :15].all()
 
 
@@ -99,7 +99,7 @@ def test_reference_sampler_targets_free_lengths_and_seeds():
     model = tiny()
     cond = torch.randn(3, 12)
     maps = sample_code_maps(model, cond, [4, None, 8], guidance=2.0, top_k=5, rng=1)
-    assert [m.shape for m in maps][0] == (4, 3) and maps[2].shape == (8, 3)
+    assert maps[0].shape == (4, 3) and maps[2].shape == (8, 3)
     assert 1 <= len(maps[1]) <= 8 and all((m >= 0).all() and (m < 16).all() for m in maps)
     again = sample_code_maps(model, cond, [4, None, 8], guidance=2.0, top_k=5, rng=1)
     assert all(np.array_equal(a, b) for a, b in zip(maps, again))

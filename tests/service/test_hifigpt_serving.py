@@ -162,9 +162,9 @@ def test_a_real_server_answers_json_bvh_and_glb(hifigpt_bundle):
     from t2m.service.app import create_app
     from t2m.service.settings import Settings
 
-    with LiveServer(create_app(Settings(bundle_path=hifigpt_bundle, intra_op_threads=1))) as server:
-        with httpx.Client(base_url=server.url, timeout=30) as http:
-            _check_formats(lambda body: http.post("/generate", json=body))
+    app = create_app(Settings(bundle_path=hifigpt_bundle, intra_op_threads=1))
+    with LiveServer(app) as server, httpx.Client(base_url=server.url, timeout=30) as http:
+        _check_formats(lambda body: http.post("/generate", json=body))
 
 
 def test_gpt_and_hifigpt_bundles_served_together(random_bundle, hifigpt_bundle, make_client):

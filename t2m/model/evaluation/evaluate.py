@@ -1,8 +1,9 @@
 """`t2m eval`: the papers' evaluation of a VQ-VAE + token model on a test split, with our own evaluator.
 
 The token model is a family (t2m.model.evaluation.family.CodeFamily): the GPT (gpt_family), the masked
-transformers (masked_family) or T2M-HiFiGPT's double-tier GPT (hifigpt_family). A family only makes codes for texts and token counts; the VQ decodes them, and
-everything else below is shared, so both families are measured on the same draws with the same evaluator.
+transformers (masked_family) or T2M-HiFiGPT's double-tier GPT (hifigpt_family). A family only makes codes for texts
+and token counts; the VQ decodes them, and everything else below is shared, so the families are measured on the same
+draws with the same evaluator.
 
 Table 1 follows Guo et al. / T2M-GPT: rows Real motion, VQ reconstruction and Generation at each guidance scale;
 columns R-precision top-1/2/3 (32-way), FID, MM-Dist, Diversity, MModality, plus MPJPE for the reconstruction.
@@ -10,8 +11,8 @@ Every number is the mean over `repeats` evaluations with ± the 95% interval (1.
 
 One repeat:
 - draw A: each test clip gets a random caption and a random crop (at most the evaluator's 196 frames, a multiple of
-  the VQ's frames per code, 4 or 8, so a generated motion can have exactly its length). Draw A is the FID reference, the generation prompts
-  (caption + the crop's token count) and the reconstruction input.
+  the VQ's frames per code, 4 or 8, so a generated motion can have exactly its length). Draw A is the FID reference,
+  the generation prompts (caption + the crop's token count) and the reconstruction input.
 - draw B: another caption/crop draw of the same clips: the Real motion row (its FID is the noise floor).
 - MModality: `mm_texts` prompts of draw A, each generated `mm_repeats` times; 10 pairs per prompt.
 
@@ -156,8 +157,10 @@ def load_hifigpt_models(evaluator_run: str | Path, vq_run: str | Path, hifigpt_r
                         data_mean: np.ndarray, data_std: np.ndarray) -> Models:
     """T2M-HiFiGPT: evaluator, a residual 1D VQ and the double-tier GPT over its code maps."""
     from t2m.model.evaluation.hifigpt_family import load_hifigpt_family
+    from t2m.model.networks.vqvae import MotionVQVAE
 
     evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
+    assert isinstance(vq, MotionVQVAE), "a vq run rebuilds a MotionVQVAE"
     family = load_hifigpt_family(hifigpt_run, vq, vq_run)
     return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
 

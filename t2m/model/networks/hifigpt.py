@@ -185,6 +185,7 @@ class HiFiGPT(nn.Module):
     def _step_blocks(blocks: nn.ModuleList, x: torch.Tensor, past: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         present = []
         for index, block in enumerate(blocks):
+            assert isinstance(block, Block)
             x, k, v = block.forward_step(x, past[index, 0], past[index, 1])
             present.append(torch.stack([k, v]))
         return x, torch.stack(present)

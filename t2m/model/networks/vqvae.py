@@ -174,7 +174,9 @@ class MotionVQVAE(nn.Module):
         return self.encoder(x.transpose(1, 2)).transpose(1, 2)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Reconstruct [B, T, feat_dim] (T a multiple of frames_per_token). Returns (recon, {"commit", "perplexity", "codes"})."""
+        """Reconstruct [B, T, feat_dim] (T a multiple of frames_per_token).
+
+        Returns (recon, {"commit", "perplexity", "codes"})."""
         self._check_input(x)
         if x.shape[1] % self.frames_per_token:
             raise ValueError(f"training windows must be a multiple of {self.frames_per_token} frames, got {x.shape[1]}")

@@ -1,7 +1,7 @@
 """Model checkpoints as docs/contracts.md fixes them.
 
 ``<run_dir>/model.safetensors`` holds the module's state dict (persistent tensors only);
-``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"evaluator"|"hifigpt"|..., "config": {...}, "step": N, "data": {...}}``
+``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"hifigpt"|..., "config": {...}, "step": N, "data": {...}}``
 is enough to rebuild the module: :func:`load_model` does that.
 The training resume state (optimizer, schedule, RNG, quantiser EMA statistics) lives apart in resume.pt.
 """

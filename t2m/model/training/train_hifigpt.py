@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING, Any
 
-from t2m.model.data.balancing import BALANCE_POWER_HELP
 from t2m.model.training import run_options
 
 if TYPE_CHECKING:
@@ -76,8 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_options.add_schedule_arguments(parser, steps=6000, batch_size=64, weight_decay=0.01)
     parser.add_argument("--vq", required=True, help="run directory of a trained VQ (--quantizer residual)")
     run_options.add_text_arguments(parser)
-    parser.add_argument("--codes-cache", default=None,
-                        help="directory of the VQ's per-clip codes, reused when made by the same VQ (default <out>)")
     parser.add_argument("--embed", type=int, default=384, help="transformer width E")
     parser.add_argument("--heads", type=int, default=6)
     parser.add_argument("--temporal-layers", type=int, default=3, help="blocks of the temporal GPT (paper: 9)")
@@ -89,10 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corruption", default="0.5",
                         help="per-time-step corruption rate tau in [0, 1] (paper 0.5), or 'uniform'")
     parser.add_argument("--stop-weight", type=float, default=1.0, help="beta of the stop loss (eq. 9)")
-    parser.add_argument("--cond-drop", type=float, default=0.1, help="condition dropout probability (paper 0.1)")
-    parser.add_argument("--cond-noise", type=float, default=0.0,
-                        help="largest relative noise added to the text feature (0 = off; see train_gpt)")
-    parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
+    run_options.add_codes_and_condition_arguments(parser, cond_drop=0.1)   # the paper's 0.1
     run_options.add_bookkeeping_arguments(parser)
 
 
@@ -108,7 +102,6 @@ def _check_vq(vq_run: str) -> dict[str, Any]:
 
 
 def main(args: argparse.Namespace) -> int:
-    import torch
 
     from t2m.model.networks.hifigpt import HiFiGPT, HiFiGPTConfig, vq_codebooks, vq_fields
     from t2m.model.training import token_models

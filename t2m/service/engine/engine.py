@@ -37,7 +37,8 @@ from t2m.service.engine.types import (
 __all__ = ["OnnxEngine"]
 
 # manifest family -> the engine's codes object for it
-CODES = {"gpt": GptCodes, "masked": MaskedCodes, "hifigpt": HiFiGPTCodes}
+CODES: dict[str, type[GptCodes | MaskedCodes | HiFiGPTCodes]] = {"gpt": GptCodes, "masked": MaskedCodes,
+                                                                   "hifigpt": HiFiGPTCodes}
 
 log = logging.getLogger(__name__)
 
