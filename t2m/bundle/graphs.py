@@ -87,13 +87,48 @@ def _masked_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
     return graphs
 
 
+def _kv(layers: int, block: Mapping[str, Any]) -> tuple[int | None, ...]:
+    """A KV cache [layers, 2, B, n_head, P, head_dim] (B and P dynamic)."""
+    return (layers, 2, None, block["n_head"], None, block["head_dim"])
+
+
+def _hifigpt_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
+    """temporal_step.onnx and residual_step.onnx (each with its own KV cache), decoder.onnx over [B, T, R] codes."""
+    block, dim, depth = manifest["hifigpt"], manifest["text_encoder"]["dim"], manifest["residual_layers"]
+    embed = block["n_head"] * block["head_dim"]
+    temporal_kv, residual_kv = _kv(block["n_layer_temporal"], block), _kv(block["n_layer_residual"], block)
+    temporal_inputs = [TensorSpec("cond", FLOAT32, (None, dim)), TensorSpec("codes", INT64, (None, depth)),
+                       TensorSpec("position", INT64, (1,))]
+    if block["length_conditioning"]:
+        temporal_inputs.append(TensorSpec("length", INT64, (None,)))
+    temporal_inputs.append(TensorSpec("past_kv", FLOAT32, temporal_kv))
+    return {
+        "text_encoder.onnx": _text_graph(manifest),
+        "temporal_step.onnx": GraphSpec(
+            inputs=tuple(temporal_inputs),
+            outputs=(TensorSpec("context", FLOAT32, (None, embed)), TensorSpec("stop_logit", FLOAT32, (None,)),
+                     TensorSpec("present_kv", FLOAT32, temporal_kv))),
+        "residual_step.onnx": GraphSpec(
+            inputs=(TensorSpec("context", FLOAT32, (None, embed)), TensorSpec("code", INT64, (None,)),
+                    TensorSpec("depth", INT64, (1,)), TensorSpec("past_kv", FLOAT32, residual_kv)),
+            outputs=(TensorSpec("logits", FLOAT32, (None, manifest["codebook_size"])),
+                     TensorSpec("present_kv", FLOAT32, residual_kv))),
+        "decoder.onnx": GraphSpec(
+            inputs=(TensorSpec("codes", INT64, (None, None, depth)),),
+            outputs=(TensorSpec("features", FLOAT32, (None, None, manifest["feature_dim"])),)),
+    }
+
+
 def expected_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
     """The input/output names, types and (static where known) dims each graph must have for this manifest."""
-    if manifest.get("family", "gpt") == "masked":
+    family = manifest.get("family", "gpt")
+    if family == "masked":
         return _masked_graphs(manifest)
+    if family == "hifigpt":
+        return _hifigpt_graphs(manifest)
     gpt = manifest["gpt"]
     dim = manifest["text_encoder"]["dim"]
-    kv = (gpt["n_layer"], 2, None, gpt["n_head"], None, gpt["head_dim"])
+    kv = _kv(gpt["n_layer"], gpt)
     step_inputs = [TensorSpec("cond", FLOAT32, (None, dim)), TensorSpec("token", INT64, (None,)),
                    TensorSpec("position", INT64, (1,))]
     if gpt["length_conditioning"]:
@@ -102,9 +137,7 @@ def expected_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
     residual = manifest["residual_layers"]
     codes_shape: tuple[int | None, ...] = (None, None) if residual == 1 else (None, None, residual)
     return {
-        "text_encoder.onnx": GraphSpec(
-            inputs=(TensorSpec("input_ids", INT64, (None, None)), TensorSpec("attention_mask", INT64, (None, None))),
-            outputs=(TensorSpec("text_features", FLOAT32, (None, dim)),)),
+        "text_encoder.onnx": _text_graph(manifest),
         "gpt_step.onnx": GraphSpec(
             inputs=tuple(step_inputs),
             outputs=(TensorSpec("logits", FLOAT32, (None, manifest["codebook_size"] + 1)),

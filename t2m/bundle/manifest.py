@@ -5,14 +5,15 @@ One table (`MANIFEST_FIELDS`) says what every field must be; `check_manifest_fie
 `family` ("gpt", the only family of format 1's first bundles) and `caption_index` (null: the bundle carries no
 index of its training captions, e.g. an imported release).
 
-Each family has its own table: the common fields plus its block (`gpt`, or `masked` for MoMask / MoGenTS token maps),
+Each family has its own table: the common fields plus its block (`gpt`, `masked` for MoMask / MoGenTS token maps, or
+`hifigpt` for T2M-HiFiGPT's double-tier GPT over residual codes),
 so a GPT manifest is checked, field by field and message by message, exactly as before the masked family existed.
 """
 from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,7 @@ __all__ = [
     "FAMILIES",
     "FAMILY_FIELDS",
     "FORMAT_VERSION",
+    "HIFIGPT_FIELDS",
     "LENGTH_GRAPH",
     "MANIFEST_FIELDS",
     "MANIFEST_NAME",
@@ -32,6 +34,7 @@ __all__ = [
     "BranchSettings",
     "CaptionIndexInfo",
     "GptSettings",
+    "HiFiGPTSettings",
     "Manifest",
     "MaskedSettings",
     "branch_graphs",
@@ -50,7 +53,7 @@ REQUIRED_FILES = ("text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decod
 CAPTION_INDEX_FILE = "caption_index.npz"
 LENGTH_GRAPH = "length.onnx"
 OPTIONAL_FILES = (CAPTION_INDEX_FILE, LENGTH_GRAPH)
-FAMILIES = ("gpt", "masked")
+FAMILIES = ("gpt", "masked", "hifigpt")
 COMMON_FILES = ("text_encoder.onnx", "tokenizer.json", "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md")
 
 
@@ -139,7 +142,22 @@ MASKED_FIELDS: dict[str, tuple[Check, str]] = {
     "masked.length_estimator": (_is_bool, "true or false"),
     "files": COMMON_FIELDS["files"],
 }
-FAMILY_FIELDS: dict[str, dict[str, tuple[Check, str]]] = {"gpt": MANIFEST_FIELDS, "masked": MASKED_FIELDS}
+# T2M-HiFiGPT (t2m.decoding.hifigpt): a temporal step graph and a residual step graph, each with its KV cache
+HIFIGPT_FIELDS: dict[str, tuple[Check, str]] = {
+    **{path: rule for path, rule in COMMON_FIELDS.items() if path != "files"},
+    "hifigpt.n_layer_temporal": POSITIVE,
+    "hifigpt.n_layer_residual": POSITIVE,
+    "hifigpt.n_head": POSITIVE,
+    "hifigpt.head_dim": POSITIVE,
+    "hifigpt.block_size": MANIFEST_FIELDS["gpt.block_size"],
+    "hifigpt.length_conditioning": (_is_bool, "true or false"),
+    "hifigpt.unconditional_branch": (_is_bool, "true or false"),
+    "hifigpt.default_guidance": _GUIDANCE,
+    "files": COMMON_FIELDS["files"],
+}
+FAMILY_FIELDS: dict[str, dict[str, tuple[Check, str]]] = {"gpt": MANIFEST_FIELDS, "masked": MASKED_FIELDS,
+                                                          "hifigpt": HIFIGPT_FIELDS}
+HIFIGPT_GRAPHS = ("temporal_step.onnx", "residual_step.onnx")
 # optional fields: path -> (check, what it must be)
 OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
     "family": (lambda v: v in FAMILIES, f"one of {list(FAMILIES)}"),
@@ -191,10 +209,14 @@ def family_of(manifest: Mapping[str, Any]) -> str:
 
 
 def required_files(manifest: Mapping[str, Any]) -> tuple[str, ...]:
-    """The files a bundle of this manifest must hold: the GPT's table, or the masked family's graphs (residual.onnx
-    only with more than one quantiser layer, length.onnx only with a length estimator)."""
-    if family_of(manifest) == "gpt":
+    """The files a bundle of this manifest must hold: the GPT's table, T2M-HiFiGPT's two step graphs, or the masked
+    family's graphs (residual.onnx only with more than one quantiser layer, length.onnx only with a length
+    estimator)."""
+    family = family_of(manifest)
+    if family == "gpt":
         return REQUIRED_FILES
+    if family == "hifigpt":
+        return (*COMMON_FILES[:2], *HIFIGPT_GRAPHS, *COMMON_FILES[2:])
     masked = manifest["masked"]
     names = ["text_encoder.onnx", "tokenizer.json", "masked.onnx"]
     if manifest["residual_layers"] > 1:
@@ -215,6 +237,13 @@ def _check_gpt_consistency(manifest: Mapping[str, Any]) -> None:
     if manifest["max_tokens"] > block_size - 1:
         raise BundleError(f"{MANIFEST_NAME}: field 'gpt.block_size' {block_size} is smaller than max_tokens + 1 = "
                           f"{manifest['max_tokens'] + 1}")
+
+
+def _check_hifigpt_consistency(manifest: Mapping[str, Any]) -> None:
+    block_size = manifest["hifigpt"]["block_size"]
+    if manifest["max_tokens"] > block_size - 1:
+        raise BundleError(f"{MANIFEST_NAME}: field 'hifigpt.block_size' {block_size} is smaller than max_tokens + 1 "
+                          f"= {manifest['max_tokens'] + 1}")
 
 
 def _check_token_ids(block: Mapping[str, Any], where: str, size: int) -> None:
@@ -272,10 +301,8 @@ def check_manifest_fields(manifest: Mapping[str, Any]) -> None:
         value = _lookup(manifest, dotted, None)
         if value is not None and not check(value):
             raise BundleError(f"{MANIFEST_NAME}: field '{dotted}' must be {expected}, got {value!r}")
-    if family == "gpt":
-        _check_gpt_consistency(manifest)
-    else:
-        _check_masked_consistency(manifest)
+    {"gpt": _check_gpt_consistency, "masked": _check_masked_consistency,
+     "hifigpt": _check_hifigpt_consistency}[family](manifest)
     index = manifest.get("caption_index")
     if index is not None and index.get("file") not in manifest["files"]:
         raise BundleError(f"{MANIFEST_NAME}: field 'files' does not list the caption index {index.get('file')!r}")
@@ -350,8 +377,23 @@ class MaskedSettings:
 
 
 @dataclass(frozen=True)
+class HiFiGPTSettings:
+    """The `hifigpt` block: the two step graphs' sizes and the loop's defaults (t2m.decoding.hifigpt)."""
+
+    n_layer_temporal: int
+    n_layer_residual: int
+    n_head: int
+    head_dim: int
+    block_size: int
+    length_conditioning: bool
+    unconditional_branch: bool
+    default_guidance: float
+
+
+@dataclass(frozen=True)
 class Manifest:
-    """The typed manifest: the fields every family has, and its family's block (`gpt` or `masked`, the other None).
+    """The typed manifest: the fields every family has, and its family's block (`gpt`, `masked` or `hifigpt`, the
+    others None).
     The GPT block's fields stay readable as before (`manifest.n_layer`, ...); the full JSON is `raw`."""
 
     family: str
@@ -372,6 +414,7 @@ class Manifest:
     raw: dict[str, Any]
     gpt: GptSettings | None = None
     masked: MaskedSettings | None = None
+    hifigpt: HiFiGPTSettings | None = None
 
     def _gpt(self) -> GptSettings:
         if self.gpt is None:
@@ -400,16 +443,22 @@ class Manifest:
 
     @property
     def length_conditioning(self) -> bool:
-        """GPT: the length input; the masked family always knows each map's rows (its length is an input)."""
+        """GPT and HiFiGPT: the length input; the masked family always knows each map's rows (its length is an
+        input)."""
+        if self.hifigpt is not None:
+            return self.hifigpt.length_conditioning
         return self._gpt().length_conditioning if self.masked is None else True
 
     @property
     def unconditional_branch(self) -> bool:
-        return self.masked.unconditional_branch if self.masked is not None else self._gpt().unconditional_branch
+        block = self.masked or self.hifigpt
+        return block.unconditional_branch if block is not None else self._gpt().unconditional_branch
 
     @property
     def default_guidance(self) -> float:
         """The guidance scale a request gets by default (the masked family: its mask stage's)."""
+        if self.hifigpt is not None:
+            return self.hifigpt.default_guidance
         return self.masked.guidance if self.masked is not None else self._gpt().default_guidance
 
 
@@ -435,6 +484,11 @@ def _masked_settings(raw: dict[str, Any]) -> MaskedSettings:
                                          for b in m.get("branches") or []))
 
 
+def _hifigpt_settings(raw: dict[str, Any]) -> HiFiGPTSettings:
+    block = {f.name: raw["hifigpt"][f.name] for f in fields(HiFiGPTSettings)}
+    return HiFiGPTSettings(**{**block, "default_guidance": float(block["default_guidance"])})
+
+
 def parse_manifest(raw: dict[str, Any]) -> Manifest:
     """Check `raw` (check_manifest_fields) and return its typed view."""
     check_manifest_fields(raw)
@@ -448,7 +502,8 @@ def parse_manifest(raw: dict[str, Any]) -> Manifest:
                                                                   float(index["threshold"])),
         files=raw["files"], raw=raw,
         gpt=_gpt_settings(raw) if family == "gpt" else None,
-        masked=_masked_settings(raw) if family == "masked" else None)
+        masked=_masked_settings(raw) if family == "masked" else None,
+        hifigpt=_hifigpt_settings(raw) if family == "hifigpt" else None)
 
 
 def read_manifest_dict(bundle_dir: Path) -> dict[str, Any]:

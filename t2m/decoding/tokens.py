@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["draw_tokens", "guided_logits", "sample_tokens"]
+__all__ = ["draw_stops", "draw_tokens", "guided_logits", "sample_tokens", "stop_probability"]
 
 
 def guided_logits(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndarray:
@@ -39,3 +39,18 @@ def sample_tokens(logits: np.ndarray, mask_end: np.ndarray, end_id: int, tempera
     logits = np.array(logits, dtype=np.float64)
     logits[mask_end, end_id] = -np.inf
     return draw_tokens(logits, temperature, top_k, rng, greedy)
+
+
+def stop_probability(logits: np.ndarray, temperature: float = 1.0) -> np.ndarray:
+    """P(stop now) from binary stop logits (already guided): sigmoid(logit / temperature), computed stably."""
+    z = np.asarray(logits, dtype=np.float64) / temperature
+    return np.exp(-np.logaddexp(0.0, -z))
+
+
+def draw_stops(logits: np.ndarray, temperature: float, rng: np.random.Generator, greedy: bool = False) -> np.ndarray:
+    """Stop or go for each row of binary stop logits [N] (T2M-HiFiGPT's stop head): a row stops when its one uniform
+    falls below stop_probability (greedy: when the logit is > 0, no draw)."""
+    logits = np.asarray(logits, dtype=np.float64)
+    if greedy:
+        return logits > 0
+    return rng.random(len(logits)) < stop_probability(logits, temperature)

@@ -78,7 +78,7 @@ def default_sizes() -> tuple[GPTConfig, VQConfig, str]:
     return GPTConfig(dropout=0.0), VQConfig(), "default GPTConfig (no t2m/bundles/default/manifest.json)"
 
 
-def _median_ms(fn: Callable[[], None], repeats: int) -> float:
+def median_ms(fn: Callable[[], None], repeats: int) -> float:
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -184,8 +184,8 @@ def bench_case(case: BenchCase, threads: int, graph_dir: Path) -> tuple[list[Ben
                                      ("PyTorch eager, prefix recomputed", torch_recompute_generate, torch_decode)):
         decode()  # warm-up (allocations, ORT's first-run optimisations)
         generate() if case.repeats > 1 else None
-        ms_generate = _median_ms(generate, case.repeats)
-        ms_decode = _median_ms(decode, max(case.repeats, 3))
+        ms_generate = median_ms(generate, case.repeats)
+        ms_decode = median_ms(decode, max(case.repeats, 3))
         rows.append(BenchRow(case, method, ms_generate / case.tokens, ms_generate, ms_decode))
     return rows, export_seconds
 

@@ -21,6 +21,7 @@ __all__ = [
     "BundleError",
     "check_out_dir",
     "prepare_out_dir",
+    "render_family_card",
     "render_model_card",
     "verify_bundle",
     "write_bundle",
@@ -138,6 +139,34 @@ def render_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
     if notes.strip():
         lines += [notes.strip(), ""]
     return "\n".join(lines)
+
+
+def render_family_card(manifest: Mapping[str, Any], description: str, rows: list[tuple[str, str]],
+                       notes: str = "") -> str:
+    """A family's MODEL_CARD.md: title, what the bundle is, the motion row, the family's `rows` (label, text), the text
+    encoder, data and licence rows, the attribution and free-form notes."""
+    text, data = manifest["text_encoder"], manifest["training_data"]
+    lines = [
+        f"# {manifest['name']} {manifest['version']}", "", description, "",
+        "| | |", "| --- | --- |",
+        f"| motion | {manifest['skeleton']} ({manifest['num_joints']} joints), {manifest['feature_dim']}-dim features,"
+        f" {manifest['fps']} fps, {manifest['frames_per_token']} frames per token row |",
+        *(f"| {label} | {value} |" for label, value in rows),
+        f"| text encoder | {text['kind']} ({text['dim']}-d, {text['pooling']} pooling,"
+        f" {'L2-normalised' if text['normalize'] else 'not normalised'}, max {text['max_length']} tokens) |",
+        f"| training data | {data['name']} ({data['license']}) |",
+        f"| licence of the weights | {manifest['license']} |", "",
+    ]
+    if data.get("attribution"):
+        lines += ["## Attribution", "", data["attribution"], ""]
+    if notes.strip():
+        lines += [notes.strip(), ""]
+    return "\n".join(lines)
+
+
+def max_seconds(manifest: Mapping[str, Any]) -> float:
+    """The longest segment a bundle generates: max_tokens rows of frames_per_token frames."""
+    return manifest["max_tokens"] * manifest["frames_per_token"] / manifest["fps"]
 
 
 def motion_fields(feature_dim: int, frames_per_token: int, max_tokens: int) -> dict[str, Any]:

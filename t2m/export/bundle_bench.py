@@ -3,8 +3,8 @@
 `t2m bench` without bundles compares implementations of one GPT (onnxruntime + KV cache vs PyTorch eager); this
 compares models: what the service's engine (the same objects `t2m serve` runs, no HTTP) spends on a 10 s motion from
 one sentence and on a 3-sentence stream of 10 s, per stage: text encoding (+ the unknown-text check), codes (the
-family's loop: GPT steps or masked re-masking + residual passes, at the model's default guidance), decoding to
-features and joints. Torch-free, like the service.
+family's loop: GPT steps, HiFiGPT's temporal + depth steps, or masked re-masking + residual passes, at the model's
+default guidance), decoding to features and joints. Torch-free, like the service.
 """
 from __future__ import annotations
 
@@ -71,6 +71,10 @@ def describe(engine: OnnxEngine) -> str:
         m = manifest.masked
         return (f"masked: {m.columns} column(s) x {manifest.residual_layers} layers, {m.steps} steps, guidance "
                 f"{m.guidance:g} / residual {m.residual_guidance:g}")
+    if manifest.family == "hifigpt" and manifest.hifigpt is not None:
+        h = manifest.hifigpt
+        return (f"hifigpt: 1 temporal + {manifest.residual_layers} residual steps per {manifest.frames_per_token} "
+                f"frames ({h.n_layer_temporal} + {h.n_layer_residual} layers), guidance {engine.limits.guidance():g}")
     return f"gpt: 1 code per step, guidance {engine.limits.guidance():g}"
 
 

@@ -87,6 +87,21 @@ def clip_text_source(weights: str | Path) -> TextSource:
         raise ValueError(str(error)) from error
 
 
+def recorded_text_source(run: Path, run_data: Mapping[str, Any],
+                         text_source: TextSource | None) -> tuple[str, Callable[[], TextSource]]:
+    """The text encoder a token run recorded (kind, and a maker of its TextSource, called last: loading an encoder
+    is the slow part); `text_source` given (tests) replaces it."""
+    text = run_data.get("text_encoder") or {}
+    kind = text.get("kind", "minilm") if isinstance(text, dict) else str(text)
+    if text_source is not None:
+        return kind, lambda: text_source
+    if kind == "clip":
+        if not text.get("clip_weights"):
+            raise ValueError(f"{run}/config.json records no clip_weights for its clip text encoder")
+        return kind, lambda: clip_text_source(text["clip_weights"])
+    return kind, minilm_text_source
+
+
 def check_int8_choice(int8: str) -> None:
     if int8 not in INT8_CHOICES:
         raise ValueError(f"--int8 must be one of {', '.join(INT8_CHOICES)}, got {int8!r}")

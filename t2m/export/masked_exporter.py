@@ -16,7 +16,14 @@ from typing import Any
 import numpy as np
 
 from t2m.bundle.manifest import branch_graphs
-from t2m.export.bundle import check_out_dir, motion_fields, prepare_out_dir, write_bundle
+from t2m.export.bundle import (
+    check_out_dir,
+    max_seconds,
+    motion_fields,
+    prepare_out_dir,
+    render_family_card,
+    write_bundle,
+)
 from t2m.export.exporter import GROSS_PARITY_ERROR, INT8_LABEL, TextSource, quantize_in_place, text_int8_line
 from t2m.export.onnx_masked import (
     MapVQ,
@@ -198,31 +205,17 @@ def _branches(branches: list[dict[str, Any]]) -> str:
 
 def render_masked_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
     """MODEL_CARD.md from the manifest's facts (+ the export checks and free-form notes)."""
-    m, text, data = manifest["masked"], manifest["text_encoder"], manifest["training_data"]
-    max_seconds = manifest["max_tokens"] * manifest["frames_per_token"] / manifest["fps"]
-    lines = [
-        f"# {manifest['name']} {manifest['version']}", "",
-        "Text-to-motion model bundle for t2m-service (masked family: VQ decoder + masked and residual transformers "
-        "over token maps + text encoder, ONNX).", "",
-        "| | |", "| --- | --- |",
-        f"| motion | {manifest['skeleton']} ({manifest['num_joints']} joints), {manifest['feature_dim']}-dim features,"
-        f" {manifest['fps']} fps, {manifest['frames_per_token']} frames per token row |",
-        f"| tokens | codebook {manifest['codebook_size']}, {m['columns']} columns, residual layers "
-        f"{manifest['residual_layers']}, at most {manifest['max_tokens']} rows ({max_seconds:.1f} s) |",
-        f"| decoding | {m['steps']} re-masking steps, guidance {m['guidance']} (residual {m['residual_guidance']}),"
-        f" top-k {m['top_k']} (residual {m['residual_top_k']}{_residual_temperature(m)}); length estimator "
-        f"{'yes' if m['length_estimator'] else 'no'} |",
-        *([f"| further generators | {_branches(m['branches'])} |"] if m.get("branches") else []),
-        f"| text encoder | {text['kind']} ({text['dim']}-d, {text['pooling']} pooling,"
-        f" {'L2-normalised' if text['normalize'] else 'not normalised'}, max {text['max_length']} tokens) |",
-        f"| training data | {data['name']} ({data['license']}) |",
-        f"| licence of the weights | {manifest['license']} |", "",
-    ]
-    if data.get("attribution"):
-        lines += ["## Attribution", "", data["attribution"], ""]
-    if notes.strip():
-        lines += [notes.strip(), ""]
-    return "\n".join(lines)
+    m = manifest["masked"]
+    rows = [("tokens", f"codebook {manifest['codebook_size']}, {m['columns']} columns, residual layers "
+                       f"{manifest['residual_layers']}, at most {manifest['max_tokens']} rows "
+                       f"({max_seconds(manifest):.1f} s)"),
+            ("decoding", f"{m['steps']} re-masking steps, guidance {m['guidance']} (residual "
+                         f"{m['residual_guidance']}), top-k {m['top_k']} (residual {m['residual_top_k']}"
+                         f"{_residual_temperature(m)}); length estimator {'yes' if m['length_estimator'] else 'no'}"),
+            *([("further generators", _branches(m["branches"]))] if m.get("branches") else [])]
+    return render_family_card(manifest, "Text-to-motion model bundle for t2m-service (masked family: VQ decoder + "
+                                        "masked and residual transformers over token maps + text encoder, ONNX).",
+                              rows, notes)
 
 
 def _parity(out_dir: Path, vq: MapVQ, masked: MaskedTransformer, residual: ResidualTransformer | None,
@@ -391,12 +384,6 @@ def _load_vq(vq_run: Path) -> JointVQVAE | MotionVQVAE:
     raise ValueError(f"{vq_run}/config.json: --vq must be a joint_vq or vq run, found {kind!r}")
 
 
-def _check_trained_on(run: Path, vq_run: Path, record: Mapping[str, Any]) -> None:
-    recorded = record.get("data", {}).get("vq_run")
-    if recorded and Path(recorded).exists() and Path(recorded).resolve() != vq_run.resolve():
-        raise ValueError(f"{run}: trained on the codes of {recorded}, not of --vq {vq_run}")
-
-
 def export_masked_from_runs(
     vq_run: str | Path, masked_run: str | Path, out_dir: str | Path, *, residual_run: str | Path | None = None,
     length_run: str | Path | None = None, name: str | None = None, version: str = "0.1.0",
@@ -406,8 +393,8 @@ def export_masked_from_runs(
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """A verified masked bundle from a joint_vq (or 1D vq) run, a masked run, a residual run (when the VQ has more
     than one layer) and an optional length run. ``text_source`` replaces building the run's text encoder (tests)."""
-    from t2m.export.exporter import _normalisation, clip_text_source, minilm_text_source, run_training_data
-    from t2m.model.evaluation.masked_family import load_run
+    from t2m.export.exporter import _normalisation, recorded_text_source, run_training_data
+    from t2m.model.evaluation.masked_family import check_trained_on, load_run
     from t2m.model.training.checkpoint import read_run_config
 
     vq_run, masked_run = Path(vq_run), Path(masked_run)
@@ -420,16 +407,13 @@ def export_masked_from_runs(
     vq = _load_vq(vq_run)
     for key in ("masked", "residual"):
         if key in records:
-            _check_trained_on(Path(str(runs[key])), vq_run, records[key])
+            check_trained_on(str(runs[key]), vq_run)
     masked = load_run(masked_run, "masked", MaskedTransformer)
     residual = None if residual_run is None else load_run(residual_run, "residual", ResidualTransformer)
     length = None if length_run is None else load_run(length_run, "length", LengthEstimator)
     check_masked_models(vq, masked, residual, length)
     masked_data = records["masked"].get("data", {})
-    text = masked_data.get("text_encoder") or {}
-    kind = text.get("kind", "minilm") if isinstance(text, dict) else str(text)
-    if kind == "clip" and not text.get("clip_weights") and text_source is None:
-        raise ValueError(f"{masked_run}/config.json records no clip_weights for its clip text encoder")
+    kind, make_text_source = recorded_text_source(masked_run, masked_data, text_source)
     training_data = run_training_data(masked_run, masked_data, vq_record, data_summary)
     cond_drop = float((masked_data.get("training") or {}).get("cond_drop", 0.0))
     mean, std = _normalisation(vq_run, vq_record)
@@ -440,10 +424,9 @@ def export_masked_from_runs(
     notes = "## Provenance\n\n" + "\n".join(lines) + "\n"
     if model_card:
         notes += "\n" + Path(model_card).read_text(encoding="utf-8")
-    if text_source is None:  # built last: loading a text encoder is the slow part
-        text_source = clip_text_source(text["clip_weights"]) if kind == "clip" else minilm_text_source()
     return export_masked_bundle(
-        out_dir, vq=vq, masked=masked, residual=residual, length=length, mean=mean, std=std, text_source=text_source,
+        out_dir, vq=vq, masked=masked, residual=residual, length=length, mean=mean, std=std,
+        text_source=make_text_source(),
         name=name or f"t2m-{training_data['name']}-masked-{kind}", version=version, training_data=training_data,
         license=training_data["license"], decoding=decoding, unconditional_branch=cond_drop > 0, notes=notes,
         check_parity=check_parity, int8=int8)

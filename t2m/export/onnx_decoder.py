@@ -8,9 +8,7 @@ layer's codes can pass -1 for the others).
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
-from typing import cast
 
 import numpy as np
 import torch
@@ -19,7 +17,6 @@ from torch import nn
 from t2m.export.graph_export import export_graph
 from t2m.model.networks.fused_vqvae import FusedVQVAE
 from t2m.model.networks.joint_vqvae import JointVQVAE
-from t2m.model.networks.quantizers import EMAResetQuantizer, ResidualQuantizer
 from t2m.model.networks.vqvae import MotionVQVAE
 
 
@@ -51,19 +48,8 @@ class DecoderGraph(nn.Module):
         return self.vq
 
     def latent(self, codes: torch.Tensor) -> torch.Tensor:
-        quantizer = self._motion_vq().quantizer
-        if not isinstance(quantizer, ResidualQuantizer):  # ema_reset / plain: one code per step
-            return quantizer.codes_to_latent(codes)
-        # the ModuleList's items are EMA-reset quantisers (its type only says Module)
-        layers = cast(Sequence[EMAResetQuantizer], quantizer.layers)
-        latent: torch.Tensor | None = None
-        for index, layer in enumerate(layers):
-            layer_codes = codes[..., index]
-            used = (layer_codes >= 0).unsqueeze(-1).to(torch.float32)
-            part = layer.codes_to_latent(layer_codes.clamp(min=0)) * used
-            latent = part if latent is None else latent + part
-        assert latent is not None, "a residual quantiser has at least one layer"
-        return latent
+        """The quantiser's own decoding path (residual: every depth's vectors summed, -1 contributing zeros)."""
+        return self._motion_vq().quantizer.codes_to_latent(codes)
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:
         latent = self.latent(codes)

@@ -5,7 +5,7 @@
   and once through onnxruntime, each feeding back its own choices. Reports the largest logit difference
   over all steps and rows, whether the code sequences are identical, and agreement with the
   reference sampler (``t2m.model.sampling.sample_codes``) and with full-prefix recomputation (``forward``).
-- Decoder graph: features for random codes vs ``vq.decode(codes) * std + mean``.
+- Decoder graph: features for random codes vs ``vq.decode(codes) * std + mean`` (residual: some depths -1).
 - Text graph: features for captions tokenized with the bundle's tokenizer.json vs the PyTorch encoder.
 """
 from __future__ import annotations
@@ -153,13 +153,16 @@ class TensorParity:
 @torch.no_grad()
 def decoder_parity(vq: MotionVQVAE, mean: np.ndarray, std: np.ndarray, onnx_path: str | Path, batch: int = 2,
                    tokens: int = 12, seed: int = 0) -> TensorParity:
-    """decoder.onnx vs vq.decode(codes) * std + mean on random codes (all residual layers used)."""
+    """decoder.onnx vs vq.decode(codes) * std + mean on random codes (residual: the first motion with unused
+    depths)."""
     from t2m.export.graph_export import ort_session
 
     generator = torch.Generator().manual_seed(seed)
     residual = vq.config.quantizer == "residual"
     shape = (batch, tokens, vq.config.residual_layers) if residual else (batch, tokens)
     codes = torch.randint(0, vq.config.nb_code, shape, generator=generator)
+    if residual and vq.config.residual_layers > 1:
+        codes[0, :, 1:] = -1  # the first motion with its first depth only: -1 = unused, a zero vector
     expected = (vq.eval().decode(codes) * torch.from_numpy(np.asarray(std, np.float32))
                 + torch.from_numpy(np.asarray(mean, np.float32))).numpy()
     (actual,) = ort_session(onnx_path).run(None, {"codes": codes.numpy()})

@@ -6,7 +6,8 @@ service choose the same codes whenever their logits agree.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -15,7 +16,7 @@ from t2m.decoding.gpt import SamplingJob
 from t2m.decoding.gpt import sample_codes as run_gpt_loop
 from t2m.model.networks.gpt import MotionGPT
 
-__all__ = ["TorchGptStep", "sample_codes"]
+__all__ = ["TorchGptStep", "evaluating", "only_job", "reference_job", "sample_codes"]
 
 
 class TorchGptStep:
@@ -37,28 +38,48 @@ class TorchGptStep:
         return logits.numpy(), present.numpy()
 
 
+def reference_job(cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int | None], max_tokens: int,
+                  guidance: float, temperature: float, top_k: int | None, rng: np.random.Generator | int | None,
+                  greedy: bool) -> SamplingJob:
+    """Every condition row as one segment of one request (the reference samplers' job); temperature 0 = greedy."""
+    conds = np.asarray(cond.detach().cpu().numpy() if isinstance(cond, torch.Tensor) else cond, dtype=np.float32)
+    if len(target_tokens) != len(conds):
+        raise ValueError(f"target_tokens has {len(target_tokens)} entries for {len(conds)} condition rows")
+    for index, target in enumerate(target_tokens):
+        if target is not None and not 1 <= int(target) <= max_tokens:
+            raise ValueError(f"target_tokens[{index}] must be in 1..{max_tokens} or None, got {target}")
+    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    return SamplingJob(conds=conds, targets=[None if t is None else int(t) for t in target_tokens], guidance=guidance,
+                       temperature=temperature if temperature > 0 else 1.0, top_k=top_k, rng=generator,
+                       greedy=greedy or temperature == 0)
+
+
+@contextmanager
+def evaluating(module: torch.nn.Module) -> Iterator[None]:
+    """The module in eval mode for the block, then back to the mode it had."""
+    was_training = module.training
+    module.eval()
+    try:
+        yield
+    finally:
+        module.train(was_training)
+
+
+def only_job(results: list[list[np.ndarray] | None]) -> list[np.ndarray]:
+    """The one job's segments (a job without a cancel callback is never cancelled)."""
+    (codes,) = results
+    if codes is None:  # pragma: no cover
+        raise RuntimeError("the reference sampler's job was cancelled")
+    return codes
+
+
 def sample_codes(gpt: MotionGPT, cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int | None],
                  guidance: float = 1.0, temperature: float = 1.0, top_k: int | None = None,
                  rng: np.random.Generator | int | None = None, greedy: bool = False) -> list[list[int]]:
     """One code sequence per condition row (cond [B, Dt]); target_tokens[i] codes for row i, None = free length
     (stop on End). temperature 0 or greedy=True picks the argmax. Returns B lists of code ids (< codebook size)."""
-    conds = np.asarray(cond.detach().cpu().numpy() if isinstance(cond, torch.Tensor) else cond, dtype=np.float32)
-    if len(target_tokens) != len(conds):
-        raise ValueError(f"target_tokens has {len(target_tokens)} entries for {len(conds)} condition rows")
     config = gpt.config
-    for index, target in enumerate(target_tokens):
-        if target is not None and not 1 <= int(target) <= config.max_tokens:
-            raise ValueError(f"target_tokens[{index}] must be in 1..{config.max_tokens} or None, got {target}")
-    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    job = SamplingJob(conds=conds, targets=[None if t is None else int(t) for t in target_tokens], guidance=guidance,
-                      temperature=temperature if temperature > 0 else 1.0, top_k=top_k, rng=generator,
-                      greedy=greedy or temperature == 0)
-    was_training = gpt.training
-    gpt.eval()
-    try:
-        (codes,) = run_gpt_loop(TorchGptStep(gpt), [job], config.max_tokens, config.end_id)
-    finally:
-        gpt.train(was_training)
-    if codes is None:  # pragma: no cover - a job without a cancel callback is never cancelled
-        raise RuntimeError("the reference sampler's job was cancelled")
+    job = reference_job(cond, target_tokens, config.max_tokens, guidance, temperature, top_k, rng, greedy)
+    with evaluating(gpt):
+        codes = only_job(run_gpt_loop(TorchGptStep(gpt), [job], config.max_tokens, config.end_id))
     return [row.tolist() for row in codes]

@@ -50,9 +50,9 @@ class Settings(BaseSettings):
     retry_after_s: int = Field(1, ge=1, description="Retry-After seconds sent with 429 and 503 answers.")
     verify_hashes: bool = Field(True, description="Check every bundle file's sha256 at load (slower start).")
     stream_every_tokens: int = Field(
-        8, ge=1, le=1000, description="A streamed request (\"stream\": true) of the GPT family gets its first final "
-                                      "frames at once, then a message whenever at least this many more codes' frames "
-                                      "(and at least as many as sent before) are final; one decode each.")
+        8, ge=1, le=1000, description="A streamed request (\"stream\": true) of the GPT or HiFiGPT family gets its "
+                                      "first final frames at once, then a message whenever at least this many more "
+                                      "codes' frames (and at least as many as sent before) are final; one decode each.")
     unknown_text: Literal["warn", "reject"] = Field(
         "warn", description="A sentence far from every training caption of the model (bundles with a caption index): "
                             "'warn' answers 200 with a warning naming the segment, 'reject' answers 422 naming it.")

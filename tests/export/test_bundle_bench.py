@@ -1,4 +1,4 @@
-"""`t2m bench --bundle`: both families timed in one run through the service's engine (figures printed, never
+"""`t2m bench --bundle`: every family timed in one run through the service's engine (figures printed, never
 asserted), and a bad --bundle is one line."""
 from __future__ import annotations
 
@@ -8,22 +8,24 @@ import pytest
 
 from t2m.cli.main import main as t2m
 from t2m.export.bundle_bench import CASES, run_bundle_bench
-from t2m.export.random_bundle import build_random_bundle, build_random_masked_bundle
+from t2m.export.random_bundle import build_random_bundle, build_random_hifigpt_bundle, build_random_masked_bundle
 
 
 @pytest.fixture(scope="module")
-def two_families(tmp_path_factory) -> list[Path]:
+def three_families(tmp_path_factory) -> list[Path]:
     root = tmp_path_factory.mktemp("bench")
-    return [build_random_bundle(root / "gpt"), build_random_masked_bundle(root / "masked")]
+    return [build_random_bundle(root / "gpt"), build_random_masked_bundle(root / "masked"),
+            build_random_hifigpt_bundle(root / "hifigpt")]
 
 
-def test_both_families_and_both_requests_in_one_table(two_families):
+def test_every_family_and_both_requests_in_one_table(three_families):
     lines: list[str] = []
-    results = run_bundle_bench(two_families, repeats=1, threads=1, echo=lines.append)
-    assert len(results) == 2
+    results = run_bundle_bench(three_families, repeats=1, threads=1, echo=lines.append)
+    assert len(results) == 3
     rows = [line for line in lines if line.startswith("| ") and "---" not in line][1:]
-    assert len(rows) == 2 * len(CASES)
-    assert any("gpt:" in row for row in rows) and any("masked:" in row for row in rows)
+    assert len(rows) == 3 * len(CASES)
+    for family in ("gpt:", "masked:", "hifigpt: 1 temporal + 3 residual steps per 8 frames"):
+        assert any(family in row for row in rows), family
     for times in (t for model in results.values() for t in model.values()):
         assert min(times.text, times.codes, times.decode) > 0
         assert times.total == pytest.approx(times.text + times.codes + times.decode)

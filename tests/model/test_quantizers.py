@@ -159,3 +159,37 @@ def test_loading_a_codebook_keeps_it_on_the_next_training_step():
 def test_perplexity_extremes():
     assert code_perplexity(torch.zeros(100, dtype=torch.long), 8).item() == pytest.approx(1.0)
     assert code_perplexity(torch.arange(8).repeat(10), 8).item() == pytest.approx(8.0, rel=1e-4)
+
+
+def test_shared_codebook_one_dictionary_for_every_depth():
+    """T2M-HiFiGPT's RVQ: one codebook (key layers.0.codebook), a greedy search at each depth over it, one EMA
+    update per batch pooled over the depths."""
+    torch.manual_seed(0)
+    quantizer = ResidualQuantizer(32, 4, num_layers=4, dropout=0.0, shared=True).train()
+    assert list(quantizer.state_dict()) == ["layers.0.codebook"]
+    for _ in range(5):
+        quantizer(torch.randn(8, 16, 4))
+    quantizer.eval()
+    x = torch.randn(3, 7, 4)
+    quantized, codes, _, _ = quantizer(x)
+    book = quantizer.layers[0].codebook
+    residual = x.clone()
+    for depth in range(4):   # each depth: the nearest code of what the earlier depths left over
+        assert torch.equal(codes[..., depth], nearest_codes(residual.reshape(-1, 4), book).view(3, 7))
+        residual = residual - book[codes[..., depth]]
+    assert torch.allclose(quantizer.codes_to_latent(codes), sum(book[codes[..., d]] for d in range(4)), atol=1e-6)
+    assert torch.allclose(quantized, quantizer.codes_to_latent(codes), atol=1e-5)
+    errors = [(x - quantizer.codes_to_latent(codes[..., :r])).pow(2).mean().item() for r in (1, 4)]
+    assert errors[1] < errors[0]
+
+
+def test_shared_codebook_update_pools_all_depths():
+    torch.manual_seed(0)
+    quantizer = ResidualQuantizer(8, 2, num_layers=3, dropout=0.0, shared=True).train()
+    layer = quantizer.layers[0]
+    quantizer(torch.randn(4, 4, 2))  # initialises the codebook from the batch
+    calls = []
+    original = layer.update
+    layer.update = lambda flat, codes: calls.append((flat.shape, codes.shape)) or original(flat, codes)
+    quantizer(torch.randn(4, 4, 2))
+    assert calls == [(torch.Size([48, 2]), torch.Size([48]))]   # one update: 3 depths x 16 latents

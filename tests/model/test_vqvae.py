@@ -113,3 +113,22 @@ def test_a_few_training_steps_lower_the_loss_on_fixed_data(quantizer):
         optimizer.step()
         losses.append(loss.item())
     assert sum(losses[-3:]) / 3 < 0.85 * losses[0], losses
+
+
+def test_eight_frames_per_code_with_a_shared_residual_codebook():
+    """T2M-HiFiGPT's RVQ-VAE: down_t 3 (8 frames a code), R depths of one codebook; decode takes [B, T, R] with -1
+    for unused depths."""
+    torch.manual_seed(0)
+    vq = MotionVQVAE(VQConfig(width=16, code_dim=8, nb_code=16, down_t=3, depth=1, quantizer="residual",
+                              residual_layers=3, shared_codebook=True)).eval()
+    assert vq.frames_per_token == 8
+    x = torch.randn(2, 32, 263)
+    codes = vq.encode(x)
+    assert codes.shape == (2, 4, 3)
+    assert vq.decode(codes).shape == (2, 32, 263)
+    partial = codes.clone()
+    partial[..., 1:] = -1
+    torch.testing.assert_close(vq.decode(partial), vq.decode(codes[..., :1]))
+    with pytest.raises(ValueError, match="multiple of 8"):
+        vq(torch.randn(1, 36, 263))
+    assert not VQConfig(quantizer="ema_reset", shared_codebook=True).shared_codebook

@@ -60,6 +60,24 @@ def masked_bundle(tmp_path_factory: pytest.TempPathFactory, masked_build: dict) 
 
 
 @pytest.fixture(scope="session")
+def hifigpt_build() -> dict:
+    """How `hifigpt_bundle` is built (the PyTorch reference rebuilds the same model from it)."""
+    return {"depth": 3, "codebook_size": 16, "seed": 2}
+
+
+@pytest.fixture(scope="session")
+def hifigpt_bundle(tmp_path_factory: pytest.TempPathFactory, hifigpt_build: dict) -> Path:
+    """A tiny random T2M-HiFiGPT bundle (three code depths, 8 frames per step), its parity checked."""
+    import torch
+
+    from t2m.export.random_bundle import build_random_hifigpt_bundle
+
+    torch.set_num_threads(1)
+    return build_random_hifigpt_bundle(tmp_path_factory.mktemp("hifigpt") / "bundle", check_parity=True,
+                                       **hifigpt_build)
+
+
+@pytest.fixture(scope="session")
 def bundle_without_uncond(random_bundle: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The same graphs, declared as trained without an unconditional branch (manifest is not hashed)."""
     target = tmp_path_factory.mktemp("bundle") / "no-uncond"

@@ -1,7 +1,8 @@
 """Frames streamed while the codes are sampled, at the engine: the decoder's reach (measured on the graph when the
 bundle loads) against the bound its convolutions and upsamplings give, the bound itself (changing code t + ahead + 1
 leaves the frames of code t alone, changing code t + ahead does not), early frames equal to the whole decode, the
-same frames whatever shares the batch, and a failing frame sink that cannot fail the generation."""
+same frames whatever shares the batch, a failing frame sink that cannot fail the generation, and the same early
+frames from a T2M-HiFiGPT bundle (code rows); the masked family's come at the end."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -169,3 +170,17 @@ def test_the_masked_family_sends_its_frames_only_with_the_whole_motion(masked_bu
     chunks: list[np.ndarray] = []
     motion = engine.generate(_request([("a person walks forward", 2.0)], guidance=4.0, sink=chunks.append))
     assert chunks == [] and len(motion.joints) == 40
+
+
+def test_a_hifigpt_bundle_streams_early_frames_equal_to_the_unstreamed_motion(hifigpt_bundle):
+    """T2M-HiFiGPT's decoder reads a row of R codes per step: the probe changes a whole row, and finds its graph's
+    bound; its loop reports each position's rows, so frames go early as for the GPT family."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    engine = OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
+    assert engine.reach == graph_reach(hifigpt_bundle / "decoder.onnx")
+    assert engine.limits.details["streaming"]["early_frames"] is True
+    chunks, streamed, whole = _streamed(engine, [("a person walks", 8.0), ("a person waves", None)], seed=8)
+    assert len(chunks) >= 2 and len(chunks[0]) == 8   # the first final step's 8 frames at once
+    assert streamed.shape == whole.shape
+    assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M

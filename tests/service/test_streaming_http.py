@@ -1,5 +1,5 @@
 """POST /generate with "stream": true: newline-delimited JSON whose frames, put together, are the json answer's frames
-(to one unit of its 5 decimals) and whose end message is the rest of that answer; both families; under
+(to one unit of its 5 decimals) and whose end message is the rest of that answer; the three families; under
 micro-batching; errors before the first frame as ordinary answers, after it as an error message; a client leaving
 mid-stream; the time-to-first-frame metric."""
 from __future__ import annotations
@@ -157,3 +157,12 @@ def test_time_to_first_frame_is_a_histogram_per_model(make_client):
         messages(client.post("/generate", json={**WALK, "stream": True}))
     client.post("/generate", json=WALK)   # not streamed: not counted
     assert f"{count} 2.0" in client.get("/metrics").text
+
+
+def test_a_hifigpt_stream_equals_the_json_answer(make_client, hifigpt_bundle):
+    client = make_client(Settings(bundle_path=hifigpt_bundle, intra_op_threads=1))
+    body = {"segments": [{"text": "a person walks", "duration": 8.0}, {"text": "a person waves", "duration": None}],
+            "seed": 8}
+    chunks = check_stream_equals_answer(messages(client.post("/generate", json={**body, "stream": True})),
+                                        client.post("/generate", json=body).json())
+    assert len(chunks) > 2 and chunks[0] == 8   # early frames, the first step's at once

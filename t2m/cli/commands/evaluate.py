@@ -1,5 +1,6 @@
 """`t2m eval`: the papers' Table 1 (and T2LM's multi-sentence metrics) for a VQ-VAE + GPT, or for the masked family
-(joint VQ + masked + residual transformer), on a test split. The family is the token run given: --gpt or --masked."""
+(joint VQ + masked + residual transformer), or for T2M-HiFiGPT (residual VQ + double-tier GPT), on a test split. The
+family is the token run given: --gpt, --masked or --hifigpt."""
 from __future__ import annotations
 
 import argparse
@@ -14,12 +15,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "generation at each guidance scale, mean ± 95% interval over repeats; plus T2LM's sliding- and "
                     "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "
                     "GPT family: --vq VQ_RUN --gpt RUN. Masked family: --vq JOINT_VQ_RUN --masked RUN --residual RUN "
-                    "[--length RUN], decoded by the service's loop (t2m.decoding.masked).")
+                    "[--length RUN], decoded by the service's loop (t2m.decoding.masked). T2M-HiFiGPT: --vq "
+                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt).")
     parser.add_argument("--data", required=True, help="dataset directory in HumanML3D layout")
     parser.add_argument("--evaluator", required=True, help="evaluator run directory (t2m train evaluator)")
     parser.add_argument("--vq", required=True, help="VQ-VAE run directory (the joint VQ for the masked family)")
     parser.add_argument("--gpt", default=None, help="GPT run directory (the GPT family)")
     parser.add_argument("--masked", default=None, help="masked transformer run directory (the masked family)")
+    parser.add_argument("--hifigpt", default=None, help="double-tier GPT run directory (T2M-HiFiGPT)")
     parser.add_argument("--residual", default=None,
                         help="masked family: residual transformer run (without it only the first quantiser layer "
                              "is generated)")
@@ -57,22 +60,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_evaluate)
 
 
-DEFAULT_GUIDANCE = {"gpt": [1.0, 3.0], "masked": [1.0, 4.0]}
+DEFAULT_GUIDANCE = {"gpt": [1.0, 3.0], "masked": [1.0, 4.0], "hifigpt": [1.0, 3.0]}
+TOKEN_RUNS = ("gpt", "masked", "hifigpt")
 MASKED_OPTIONS = ("steps", "residual_guidance", "residual_top_k")   # MaskedSettings fields set from the CLI
 MASKED_RUNS = ("residual", "length")
 
 
 def _family(args: argparse.Namespace) -> str:
-    """The family ("gpt" or "masked") from the token run given; the other family's options are refused."""
+    """The family ("gpt", "masked" or "hifigpt") from the token run given; the masked family's options are refused
+    for the others."""
     from t2m.cli.main import CliError
 
-    if (args.gpt is None) == (args.masked is None):
-        raise CliError("give exactly one of --gpt RUN (GPT family) or --masked RUN (masked family)")
-    if args.gpt is not None:
+    given = [name for name in TOKEN_RUNS if getattr(args, name) is not None]
+    if len(given) != 1:
+        raise CliError("give exactly one of --gpt RUN (GPT family), --masked RUN (masked family) or --hifigpt RUN "
+                       "(T2M-HiFiGPT)")
+    if given[0] != "masked":
         for name in (*MASKED_RUNS, *MASKED_OPTIONS):
             if getattr(args, name) is not None:
-                raise CliError(f"--{name.replace('_', '-')} applies to the masked family (--masked), not to --gpt")
-        return "gpt"
+                raise CliError(f"--{name.replace('_', '-')} applies to the masked family (--masked), not to "
+                               f"--{given[0]}")
+        return given[0]
     if args.steps is not None and args.steps < 1:
         raise CliError(f"--steps must be at least 1, got {args.steps}")
     if args.residual_top_k is not None and args.residual_top_k < 1:
@@ -96,7 +104,14 @@ def _evaluate(args: argparse.Namespace) -> int:
     import torch
 
     from t2m.model.data.motion_data import MotionDirectory
-    from t2m.model.evaluation.evaluate import EvalOptions, evaluate, load_masked_models, load_models, write_report
+    from t2m.model.evaluation.evaluate import (
+        EvalOptions,
+        evaluate,
+        load_hifigpt_models,
+        load_masked_models,
+        load_models,
+        write_report,
+    )
     from t2m.model.evaluation.masked_family import MaskedSettings
 
     torch.set_num_threads(args.threads)
@@ -110,6 +125,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     reader = MotionDirectory(args.data, args.split)
     if family == "gpt":
         models = load_models(args.evaluator, args.vq, args.gpt, reader.mean, reader.std)
+    elif family == "hifigpt":
+        models = load_hifigpt_models(args.evaluator, args.vq, args.hifigpt, reader.mean, reader.std)
     else:
         settings = MaskedSettings(**{name: getattr(args, name) for name in MASKED_OPTIONS
                                      if getattr(args, name) is not None})

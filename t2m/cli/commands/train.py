@@ -1,8 +1,8 @@
 """`t2m train KIND`: the training entry points (torch is imported only when one runs).
 
 Each trainer module (t2m.model.training.train_vq, train_gpt, train_evaluator, train_joint_vq, train_masked,
-train_residual, train_length) exposes `add_arguments(parser)` and `main(args)`; this command only wires them to
-sub-commands.
+train_residual, train_length, train_hifigpt) exposes `add_arguments(parser)` and `main(args)`; this command only
+wires them to sub-commands.
 """
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ TRAINERS = {
     "masked": ("t2m.model.training.train_masked", "train the masked transformer on a VQ's first-layer codes"),
     "residual": ("t2m.model.training.train_residual", "train the residual transformer on a VQ's later layers"),
     "length": ("t2m.model.training.train_length", "train the length estimator (free length for masked models)"),
+    # T2M-HiFiGPT (issue 16)
+    "hifigpt": ("t2m.model.training.train_hifigpt", "train T2M-HiFiGPT's double-tier GPT on a residual VQ's codes"),
 }
 
 

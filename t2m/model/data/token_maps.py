@@ -30,7 +30,8 @@ def as_token_map(codes: np.ndarray) -> np.ndarray:
 
 
 class TokenMapDataset(Dataset):
-    """{"cond" [Dt], "codes" [max_tokens, C, R] (-1 past the end), "length"} per clip."""
+    """{"cond" [Dt], "codes" [max_tokens, C, R] (-1 past the end), "length", "ends"} per clip; "ends" says whether
+    the window reaches the clip's last row (a crop of a longer clip does not: its motion goes on)."""
 
     def __init__(
         self,
@@ -73,6 +74,7 @@ class TokenMapDataset(Dataset):
             "cond": torch.from_numpy(np.asarray(caption, dtype=np.float32)),
             "codes": torch.from_numpy(codes),
             "length": torch.tensor(len(window), dtype=torch.long),
+            "ends": torch.tensor(start + len(window) == len(clip_codes)),
         }
 
 

@@ -1,8 +1,9 @@
 """`t2m eval`: the papers' evaluation of a VQ-VAE + token model on a test split, with our own evaluator.
 
-The token model is a family (t2m.model.evaluation.family.CodeFamily): the GPT (gpt_family) or the masked
-transformers (masked_family). A family only makes codes for texts and token counts; the VQ decodes them, and
-everything else below is shared, so both families are measured on the same draws with the same evaluator.
+The token model is a family (t2m.model.evaluation.family.CodeFamily): the GPT (gpt_family), the masked
+transformers (masked_family) or T2M-HiFiGPT's double-tier GPT (hifigpt_family). A family only makes codes for texts
+and token counts; the VQ decodes them, and everything else below is shared, so the families are measured on the same
+draws with the same evaluator.
 
 Table 1 follows Guo et al. / T2M-GPT: rows Real motion, VQ reconstruction and Generation at each guidance scale;
 columns R-precision top-1/2/3 (32-way), FID, MM-Dist, Diversity, MModality, plus MPJPE for the reconstruction.
@@ -10,8 +11,8 @@ Every number is the mean over `repeats` evaluations with ± the 95% interval (1.
 
 One repeat:
 - draw A: each test clip gets a random caption and a random crop (at most the evaluator's 196 frames, a multiple of
-  4 so a generated motion can have exactly its length). Draw A is the FID reference, the generation prompts
-  (caption + the crop's token count) and the reconstruction input.
+  the VQ's frames per code, 4 or 8, so a generated motion can have exactly its length). Draw A is the FID reference,
+  the generation prompts (caption + the crop's token count) and the reconstruction input.
 - draw B: another caption/crop draw of the same clips: the Real motion row (its FID is the noise floor).
 - MModality: `mm_texts` prompts of draw A, each generated `mm_repeats` times; 10 pairs per prompt.
 
@@ -106,6 +107,11 @@ class Models:
     evaluator_text: str = "minilm"
     paths: dict[str, str] = field(default_factory=dict)
 
+    @property
+    def frames_per_token(self) -> int:
+        """Frames per code row of the VQ (4; 8 for T2M-HiFiGPT's RVQ-VAE): crops are cut to multiples of it."""
+        return int(self.vq.frames_per_token)
+
 
 def _load_evaluator_and_vq(evaluator_run: str | Path, vq_run: str | Path, vq_kinds: Sequence[str],
                            data_mean: np.ndarray, data_std: np.ndarray
@@ -147,6 +153,18 @@ def load_models(evaluator_run: str | Path, vq_run: str | Path, gpt_run: str | Pa
     return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
 
 
+def load_hifigpt_models(evaluator_run: str | Path, vq_run: str | Path, hifigpt_run: str | Path,
+                        data_mean: np.ndarray, data_std: np.ndarray) -> Models:
+    """T2M-HiFiGPT: evaluator, a residual 1D VQ and the double-tier GPT over its code maps."""
+    from t2m.model.evaluation.hifigpt_family import load_hifigpt_family
+    from t2m.model.networks.vqvae import MotionVQVAE
+
+    evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
+    assert isinstance(vq, MotionVQVAE), "a vq run rebuilds a MotionVQVAE"
+    family = load_hifigpt_family(hifigpt_run, vq, vq_run)
+    return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
+
+
 def load_masked_models(evaluator_run: str | Path, vq_run: str | Path, masked_run: str | Path,
                        residual_run: str | Path | None, length_run: str | Path | None, settings: MaskedSettings,
                        data_mean: np.ndarray, data_std: np.ndarray) -> Models:
@@ -175,11 +193,12 @@ class Draw:
     """One caption and one crop per clip."""
 
     captions: list[str]
-    motions: list[np.ndarray]      # raw [T', D], T' a multiple of 4
+    motions: list[np.ndarray]      # raw [T', D], T' a multiple of frames_per_token
+    frames_per_token: int = FRAMES_PER_TOKEN
 
     @property
     def tokens(self) -> list[int]:
-        return [len(m) // FRAMES_PER_TOKEN for m in self.motions]
+        return [len(m) // self.frames_per_token for m in self.motions]
 
 
 def read_clips(reader, limit: int | None, min_frames: int = FRAMES_PER_TOKEN) -> Clips:
@@ -200,15 +219,15 @@ def read_clips(reader, limit: int | None, min_frames: int = FRAMES_PER_TOKEN) ->
     return kept
 
 
-def draw(clips: Clips, max_frames: int, rng: np.random.Generator) -> Draw:
+def draw(clips: Clips, max_frames: int, rng: np.random.Generator, frames_per_token: int = FRAMES_PER_TOKEN) -> Draw:
     captions, motions = [], []
     for features, clip_captions in zip(clips.features, clips.captions):
         captions.append(clip_captions[int(rng.integers(len(clip_captions)))])
         length = min(len(features), max_frames)
-        length -= length % FRAMES_PER_TOKEN
+        length -= length % frames_per_token
         start = int(rng.integers(0, len(features) - length + 1))
         motions.append(features[start:start + length])
-    return Draw(captions, motions)
+    return Draw(captions, motions, frames_per_token)
 
 
 def windows(motion: np.ndarray, window: int, stride: int) -> list[np.ndarray]:
@@ -360,8 +379,9 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
     from t2m.motion.features import features_to_joints
 
     options.check()
-    clips = read_clips(reader, options.limit)
-    max_frames = min(models.evaluator.config.max_frames, FRAMES_PER_TOKEN * models.family.max_tokens)
+    per_token = models.frames_per_token
+    clips = read_clips(reader, options.limit, min_frames=per_token)
+    max_frames = min(models.evaluator.config.max_frames, per_token * models.family.max_tokens)
     texts = TextFeatures([c for cs in clips.captions for c in cs], [models.evaluator_text, models.family.text_encoder],
                          text_cache, encoder_kwargs)
     evaluator = models.evaluator
@@ -379,7 +399,7 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
         seed = options.seed * 1000 + repeat
         rng = np.random.default_rng(seed)
         generator = np.random.default_rng([seed, 1])   # the sampling stream, apart from the crop draws
-        reference, real = draw(clips, max_frames, rng), draw(clips, max_frames, rng)
+        reference, real = draw(clips, max_frames, rng, per_token), draw(clips, max_frames, rng, per_token)
         reference_emb = embed_motions(evaluator, reference.motions, normalized=False)
         text_emb_a = embed_texts(evaluator, texts(models.evaluator_text, reference.captions))
         text_emb_b = embed_texts(evaluator, texts(models.evaluator_text, real.captions))
@@ -457,7 +477,7 @@ def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], stre
     per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
     motions = decode(models, [np.concatenate([np.asarray(segment) for segment in stream]) for stream in per_stream],
                      options.batch_size)
-    lengths = [[FRAMES_PER_TOKEN * len(segment) for segment in stream] for stream in per_stream]
+    lengths = [[models.frames_per_token * len(segment) for segment in stream] for stream in per_stream]
     return stream_metrics(models.evaluator, motions, lengths, options, real_window_emb)
 
 
@@ -556,15 +576,18 @@ def _table(summary: dict[str, dict[str, list[float]]], rows: list[str], columns)
 
 
 MODEL_LABELS = {"evaluator": "evaluator", "vq": "VQ", "gpt": "GPT", "masked": "masked transformer",
-                "residual": "residual transformer", "length": "length estimator"}
+                "residual": "residual transformer", "length": "length estimator", "hifigpt": "double-tier GPT"}
 
 
 def _models_line(result: dict[str, Any]) -> str:
-    """The runs evaluated; for the masked family also its decoding settings (steps, the residual stage's)."""
+    """The runs evaluated; for the masked family and T2M-HiFiGPT also their decoding settings."""
     runs = ", ".join(f"{MODEL_LABELS.get(name, name)} `{path}`" for name, path in result["models"].items())
     line = f"Models: {runs}."
     decoding = result.get("decoding")
-    if decoding:
+    if decoding and result.get("family") == "hifigpt":
+        line += (f" T2M-HiFiGPT decoding (t2m.decoding.hifigpt): {decoding['depth']} residual depths per time step, "
+                 "guidance on the code logits (the stop head is not consulted at the crops' lengths).")
+    elif decoding:
         residual = (f"residual stage guidance {decoding['residual_guidance']:g}, top-k "
                     f"{decoding['residual_top_k'] or 'off'}" if decoding.get("residual_stage")
                     else "no residual stage (first quantiser layer only)")

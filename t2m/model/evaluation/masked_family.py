@@ -116,14 +116,14 @@ def _layers_and_columns(vq: MotionVQVAE | JointVQVAE) -> tuple[int, int]:
     return (vq.config.residual_layers if vq.config.quantizer == "residual" else 1), 1
 
 
-def _text_kind(run: str | Path) -> str:
+def text_kind(run: str | Path) -> str:
     from t2m.model.training.checkpoint import read_run_config
 
     text = read_run_config(run).get("data", {}).get("text_encoder", "minilm")
     return str(text.get("kind", "minilm") if isinstance(text, dict) else text)
 
 
-def _check_trained_on(run: str | Path, vq_run: str | Path) -> None:
+def check_trained_on(run: str | Path, vq_run: str | Path) -> None:
     """A token model learned one VQ's codes: refuse another VQ (when the recorded one still exists)."""
     from t2m.model.training.checkpoint import read_run_config
 
@@ -142,22 +142,22 @@ def load_masked_family(vq: MotionVQVAE | JointVQVAE, vq_run: str | Path, masked_
 
     layers, columns = _layers_and_columns(vq)
     masked = load_run(masked_run, "masked", MaskedTransformer)
-    _check_trained_on(masked_run, vq_run)
+    check_trained_on(masked_run, vq_run)
     if (masked.config.codebook_size, masked.config.columns) != (vq.config.nb_code, columns):
         raise ValueError(f"{masked_run}: the masked transformer has {masked.config.codebook_size} codes x "
                          f"{masked.config.columns} columns, the VQ {vq_run} {vq.config.nb_code} x {columns}")
-    text = _text_kind(masked_run)
+    text = text_kind(masked_run)
     paths = {"masked": str(masked_run)}
     residual = None
     if residual_run is not None:
         residual = load_run(residual_run, "residual", ResidualTransformer)
-        _check_trained_on(residual_run, vq_run)
+        check_trained_on(residual_run, vq_run)
         shape = (residual.config.codebook_size, residual.config.columns, residual.config.residual_layers)
         if shape != (vq.config.nb_code, columns, layers):
             raise ValueError(f"{residual_run}: the residual transformer has {shape[0]} codes x {shape[1]} columns x "
                              f"{shape[2]} layers, the VQ {vq_run} {vq.config.nb_code} x {columns} x {layers}")
-        if _text_kind(residual_run) != text:
-            raise ValueError(f"{residual_run}: text encoder {_text_kind(residual_run)!r} differs from the masked "
+        if text_kind(residual_run) != text:
+            raise ValueError(f"{residual_run}: text encoder {text_kind(residual_run)!r} differs from the masked "
                              f"run's {text!r}")
         paths["residual"] = str(residual_run)
     length = None

@@ -85,6 +85,10 @@ class EMAResetQuantizer(nn.Module):
             flat = flat + torch.randn_like(flat) * std
         return flat[torch.randperm(flat.shape[0], device=flat.device)[: self.nb_code]]
 
+    def update(self, flat: torch.Tensor, codes: torch.Tensor) -> None:
+        """The EMA update (and dead-code reset) from latents [N, D] assigned to codes [N] (training only)."""
+        self._ema_update(flat.detach(), codes)
+
     @torch.no_grad()
     def _ema_update(self, flat: torch.Tensor, codes: torch.Tensor) -> None:
         if not bool(self.initialized):
@@ -100,13 +104,22 @@ class EMAResetQuantizer(nn.Module):
         updated = self.code_sum / self.code_count.clamp(min=1e-6).unsqueeze(1)
         self.codebook.copy_(alive * updated + (1.0 - alive) * self._random_batch_vectors(flat))
 
+    def initialize_from(self, flat: torch.Tensor) -> None:
+        """In training, the first batch's latents [N, D] become the codebook (no-op once initialised)."""
+        if self.training and not bool(self.initialized):
+            self._ema_update(flat.detach(), torch.zeros(0, dtype=torch.long, device=flat.device))
+
+    def assign(self, flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Nearest codes of latents [N, D] and their vectors (a copy: a later EMA update does not change them)."""
+        codes = nearest_codes(flat.detach(), self.codebook)
+        return codes, F.embedding(codes, self.codebook).clone()
+
     def forward(self, x: torch.Tensor) -> QuantizerOutput:
         batch, time, dim = x.shape
         flat = x.reshape(-1, dim)
-        if self.training and not bool(self.initialized):
-            self._ema_update(flat.detach(), torch.zeros(0, dtype=torch.long, device=x.device))
-        codes = nearest_codes(flat.detach(), self.codebook)
-        quantized = F.embedding(codes, self.codebook).view(batch, time, dim).clone()  # the codebook before this step
+        self.initialize_from(flat)
+        codes, vectors = self.assign(flat)
+        quantized = vectors.view(batch, time, dim)  # the codebook before this step
         if self.training:
             self._ema_update(flat.detach(), codes)
         perplexity = code_perplexity(codes, self.nb_code)
@@ -172,10 +185,16 @@ class ResidualQuantizer(nn.Module):
     r ~ U{1..R} layers are used, so the first layers learn to carry a coarse motion
     on their own. Codes of unused layers are -1. The latent is the sum of the layers'
     codebook vectors; ``perplexity`` is the first layer's.
+
+    ``shared=True`` is T2M-HiFiGPT's variant: one codebook serves every depth (its key is ``layers.0.codebook``),
+    so the greedy search picks R codes of one dictionary whose sum approximates the latent. Its EMA update pools the
+    residuals of all depths of a batch into one update (R separate updates would drag the codes towards whichever
+    depth came last), and dead codes are reset to residuals of any depth.
     """
 
     def __init__(
-        self, nb_code: int, code_dim: int, num_layers: int = 6, dropout: float = 0.2, mu: float = 0.99
+        self, nb_code: int, code_dim: int, num_layers: int = 6, dropout: float = 0.2, mu: float = 0.99,
+        shared: bool = False,
     ) -> None:
         super().__init__()
         if num_layers < 1:
@@ -184,8 +203,20 @@ class ResidualQuantizer(nn.Module):
         self.code_dim = code_dim
         self.num_layers = num_layers
         self.dropout = dropout
-        self.layers = nn.ModuleList(EMAResetQuantizer(nb_code, code_dim, mu=mu) for _ in range(num_layers))
+        self.shared = shared
+        books = 1 if shared else num_layers
+        self.layers = nn.ModuleList(EMAResetQuantizer(nb_code, code_dim, mu=mu) for _ in range(books))
         self.last_active_layers = num_layers  # for tests and logging
+
+    def layer(self, depth: int) -> EMAResetQuantizer:
+        """The quantiser (codebook) of a depth: its own, or the shared one."""
+        layer = self.layers[0 if self.shared else depth]
+        assert isinstance(layer, EMAResetQuantizer)
+        return layer
+
+    def codebooks(self) -> torch.Tensor:
+        """The codebooks [books, K, D] (books = 1 when shared, else R), in depth order."""
+        return torch.stack([self.layer(index).codebook for index in range(len(self.layers))])
 
     def _active_layers(self) -> int:
         if self.training and self.num_layers > 1 and torch.rand(()).item() < self.dropout:
@@ -195,22 +226,50 @@ class ResidualQuantizer(nn.Module):
     def forward(self, x: torch.Tensor) -> QuantizerOutput:
         active = self._active_layers()
         self.last_active_layers = active
+        if self.shared:
+            quantized_sum, codes, loss = self._shared_chain(x, active)
+        else:
+            quantized_sum, codes, loss = self._chain(x, active)
+        perplexity = code_perplexity(codes[..., 0], self.nb_code)
+        # Straight-through for the whole chain; each depth's commitment loss already pulls the encoder.
+        quantized = x + (quantized_sum - x).detach()
+        return quantized, codes, loss, perplexity
+
+    def _chain(self, x: torch.Tensor, active: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One quantiser per depth, each updating its own codebook."""
         residual = x
         quantized_sum = torch.zeros_like(x)
         codes = torch.full((*x.shape[:2], self.num_layers), -1, dtype=torch.long, device=x.device)
         loss = x.new_zeros(())
-        perplexity = x.new_zeros(())
-        for index, layer in enumerate(self.layers[:active]):
-            quantized, layer_codes, layer_loss, layer_perplexity = layer(residual)
+        for index in range(active):
+            quantized, layer_codes, layer_loss, _ = self.layer(index)(residual)
             residual = residual - quantized.detach()
             quantized_sum = quantized_sum + quantized.detach()
             codes[:, :, index] = layer_codes
             loss = loss + layer_loss
-            if index == 0:
-                perplexity = layer_perplexity
-        # Straight-through for the whole chain; each layer's commitment loss already pulls the encoder.
-        quantized = x + (quantized_sum - x).detach()
-        return quantized, codes, loss, perplexity
+        return quantized_sum, codes, loss
+
+    def _shared_chain(self, x: torch.Tensor, active: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The greedy search of eq. (1) over one codebook, then one pooled EMA update."""
+        layer = self.layer(0)
+        batch, time, dim = x.shape
+        residual = x.reshape(-1, dim).detach()
+        layer.initialize_from(residual)
+        quantized_sum = torch.zeros_like(residual)
+        codes = torch.full((batch, time, self.num_layers), -1, dtype=torch.long, device=x.device)
+        loss = x.new_zeros(())
+        seen, chosen = [], []
+        for index in range(active):
+            depth_codes, vectors = layer.assign(residual)
+            loss = loss + F.mse_loss(x.reshape(-1, dim) - quantized_sum, vectors)
+            seen.append(residual)
+            chosen.append(depth_codes)
+            residual = residual - vectors
+            quantized_sum = quantized_sum + vectors
+            codes[:, :, index] = depth_codes.view(batch, time)
+        if self.training:
+            layer.update(torch.cat(seen), torch.cat(chosen))
+        return quantized_sum.view(batch, time, dim), codes, loss
 
     def codes_to_latent(self, codes: torch.Tensor) -> torch.Tensor:
         """[B, T, R'] (R' <= R, first R' layers) or [B, T] (first layer only) -> [B, T, D], layers summed;
@@ -224,7 +283,6 @@ class ResidualQuantizer(nn.Module):
 
     def _layer_latent(self, index: int, codes: torch.Tensor) -> torch.Tensor:
         """One layer's vectors; a code of -1 (layer unused, as quantiser dropout writes) contributes zeros."""
-        layer = self.layers[index]
-        assert isinstance(layer, EMAResetQuantizer)
+        layer = self.layer(index)
         used = (codes >= 0).unsqueeze(-1).to(layer.codebook.dtype)
         return layer.codes_to_latent(codes.clamp(min=0)) * used

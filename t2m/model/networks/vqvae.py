@@ -1,4 +1,4 @@
-"""The motion VQ-VAE: 1D convolutions over time, 4 frames per code (T2M-GPT's architecture).
+"""The motion VQ-VAE: 1D convolutions over time, 2**down_t frames per code (T2M-GPT's architecture: 4; T2M-HiFiGPT: 8).
 
 Module names mirror T2M-GPT's ``vqvae.*`` keys (without the prefix) so its released
 ``net_last.pth`` loads 1:1 into :class:`MotionVQVAE`:
@@ -6,7 +6,7 @@ Module names mirror T2M-GPT's ``vqvae.*`` keys (without the prefix) so its relea
     encoder.model = [Conv(in, W, 3), ReLU, (Conv(W, W, 4, stride 2) -> Resnet1D) x down_t, Conv(W, code_dim, 3)]
     decoder.model = [Conv(code_dim, W, 3), ReLU, (Resnet1D -> Upsample x2 -> Conv(W, W, 3)) x down_t,
                      Conv(W, W, 3), ReLU, Conv(W, feat_dim, 3)]
-    quantizer.codebook  (or quantizer.layers.{i}.codebook for the residual quantiser)
+    quantizer.codebook  (or quantizer.layers.{i}.codebook for the residual quantiser; layers.0 only when shared)
 
 Inputs and outputs are normalised features ``[B, T, feat_dim]`` ((x - mean) / std);
 de-normalisation happens outside (in the exported decoder graph).
@@ -40,6 +40,7 @@ class VQConfig:
     residual_layers: int = 1
     quantizer_dropout: float = 0.2
     ema_mu: float = 0.99
+    shared_codebook: bool = False  # residual only: one codebook for every depth (T2M-HiFiGPT's RVQ-VAE)
 
     def __post_init__(self) -> None:
         if self.quantizer not in QUANTIZERS:
@@ -48,6 +49,9 @@ class VQConfig:
             raise ValueError(f"residual_layers must be >= 1, got {self.residual_layers}")
         if self.quantizer != "residual":
             self.residual_layers = 1
+            self.shared_codebook = False
+        if not 0.0 <= self.quantizer_dropout <= 1.0:
+            raise ValueError(f"quantizer_dropout must be in [0, 1], got {self.quantizer_dropout}")
         for name in ("feat_dim", "width", "code_dim", "nb_code", "down_t", "depth", "dilation_growth"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -139,7 +143,8 @@ def build_quantizer(config: VQConfig) -> Quantizer:
     if config.quantizer == "plain":
         return PlainQuantizer(config.nb_code, config.code_dim)
     return ResidualQuantizer(
-        config.nb_code, config.code_dim, config.residual_layers, config.quantizer_dropout, mu=config.ema_mu
+        config.nb_code, config.code_dim, config.residual_layers, config.quantizer_dropout, mu=config.ema_mu,
+        shared=config.shared_codebook,
     )
 
 
@@ -164,12 +169,14 @@ class MotionVQVAE(nn.Module):
             raise ValueError(f"motion needs at least {self.frames_per_token} frames, got {x.shape[1]}")
 
     def encode_latent(self, x: torch.Tensor) -> torch.Tensor:
-        """[B, T, feat_dim] -> pre-quantisation latent [B, T // 4, code_dim]."""
+        """[B, T, feat_dim] -> pre-quantisation latent [B, T // frames_per_token, code_dim]."""
         self._check_input(x)
         return self.encoder(x.transpose(1, 2)).transpose(1, 2)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Reconstruct [B, T, feat_dim] (T a multiple of 4). Returns (recon, {"commit", "perplexity", "codes"})."""
+        """Reconstruct [B, T, feat_dim] (T a multiple of frames_per_token).
+
+        Returns (recon, {"commit", "perplexity", "codes"})."""
         self._check_input(x)
         if x.shape[1] % self.frames_per_token:
             raise ValueError(f"training windows must be a multiple of {self.frames_per_token} frames, got {x.shape[1]}")
@@ -179,7 +186,7 @@ class MotionVQVAE(nn.Module):
 
     @torch.no_grad()
     def encode(self, x: torch.Tensor) -> torch.Tensor:
-        """[B, T, feat_dim] -> codes [B, T // 4] (or [B, T // 4, R] for the residual quantiser), no EMA update."""
+        """[B, T, feat_dim] -> codes [B, T // fpt] (or [B, T // fpt, R] for the residual quantiser), no EMA update."""
         was_training = self.training
         self.eval()
         try:
@@ -189,6 +196,6 @@ class MotionVQVAE(nn.Module):
         return codes
 
     def decode(self, codes: torch.Tensor) -> torch.Tensor:
-        """codes [B, T] (or [B, T, R]) int64 -> normalised features [B, 4T, feat_dim]."""
+        """codes [B, T] (or [B, T, R]; -1 = layer unused) int64 -> normalised features [B, fpt T, feat_dim]."""
         latent = self.quantizer.codes_to_latent(codes)
         return self.decoder(latent.transpose(1, 2)).transpose(1, 2)

@@ -1,7 +1,7 @@
 """Model checkpoints as docs/contracts.md fixes them.
 
 ``<run_dir>/model.safetensors`` holds the module's state dict (persistent tensors only);
-``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"evaluator"|..., "config": {...}, "step": N, "data": {...}}``
+``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"hifigpt"|..., "config": {...}, "step": N, "data": {...}}``
 is enough to rebuild the module: :func:`load_model` does that.
 The training resume state (optimizer, schedule, RNG, quantiser EMA statistics) lives apart in resume.pt.
 """
@@ -27,7 +27,9 @@ MASKED_FAMILY = {
     "residual": ("t2m.model.networks.residual_transformer", "ResidualTransformer", "TokenTransformerConfig"),
     "length": ("t2m.model.networks.length_estimator", "LengthEstimator", "LengthEstimatorConfig"),
 }
-KINDS = ("vq", "gpt", "evaluator", *MASKED_FAMILY)
+# every kind built from such a table: the masked family's and T2M-HiFiGPT's double-tier GPT (issue 16)
+TABLE_KINDS = {**MASKED_FAMILY, "hifigpt": ("t2m.model.networks.hifigpt", "HiFiGPT", "HiFiGPTConfig")}
+KINDS = ("vq", "gpt", "evaluator", *TABLE_KINDS)
 
 
 def model_kind(model: nn.Module) -> str:
@@ -40,7 +42,7 @@ def model_kind(model: nn.Module) -> str:
         return "gpt"
     if type(model).__name__ == "MotionEvaluator":
         return "evaluator"
-    for kind, (module, class_name, _) in MASKED_FAMILY.items():
+    for kind, (module, class_name, _) in TABLE_KINDS.items():
         if type(model).__module__ == module and type(model).__name__ == class_name:
             return kind
     raise ValueError(f"no checkpoint kind for {type(model).__name__}")
@@ -99,10 +101,10 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
         from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
 
         return MotionEvaluator(EvaluatorConfig(**config))
-    if kind in MASKED_FAMILY:
+    if kind in TABLE_KINDS:
         import importlib
 
-        module_name, class_name, config_name = MASKED_FAMILY[kind]
+        module_name, class_name, config_name = TABLE_KINDS[kind]
         module = importlib.import_module(module_name)
         return getattr(module, class_name)(getattr(module, config_name).from_dict(config))
     raise ValueError(f"unknown checkpoint kind {kind!r}")

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from t2m.model.data.balancing import BALANCE_POWER_HELP
+
 if TYPE_CHECKING:
     from t2m.model.training.loop import LoopSettings
 
@@ -32,6 +34,18 @@ def add_text_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clip-weights", default=None,
                         help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
     parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
+
+
+def add_codes_and_condition_arguments(parser: argparse.ArgumentParser, cond_drop: float) -> None:
+    """--codes-cache (a VQ's per-clip codes), --cond-drop, --cond-noise, --balance-power: the token models' data
+    options (the masked family's and T2M-HiFiGPT's)."""
+    parser.add_argument("--codes-cache", default=None,
+                        help="directory of the VQ's per-clip codes, reused when made by the same VQ (default <out>)")
+    parser.add_argument("--cond-drop", type=float, default=cond_drop,
+                        help="condition dropout probability (trains the null condition for guidance)")
+    parser.add_argument("--cond-noise", type=float, default=0.0,
+                        help="largest relative noise added to the text feature (0 = off; see train_gpt)")
+    parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
 
 
 def add_bookkeeping_arguments(parser: argparse.ArgumentParser, every: int = 500) -> None:

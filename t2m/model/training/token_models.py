@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from t2m.model.data.balancing import BALANCE_POWER_HELP
 from t2m.model.training import run_options
 
 if TYPE_CHECKING:
@@ -38,8 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser, cond_drop: float) -> None:
     run_options.add_schedule_arguments(parser, steps=4000, batch_size=32, weight_decay=1e-5)
     parser.add_argument("--vq", required=True, help="run directory of a trained joint VQ (2D) or residual 1D VQ")
     run_options.add_text_arguments(parser)
-    parser.add_argument("--codes-cache", default=None,
-                        help="directory of the VQ's per-clip codes, reused when made by the same VQ (default <out>)")
     parser.add_argument("--latent", type=int, default=256, help="transformer width")
     parser.add_argument("--heads", type=int, default=4)
     parser.add_argument("--layers", type=int, default=2, help="layers per stack (joint-time, spatial, temporal)")
@@ -52,11 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser, cond_drop: float) -> None:
                         help="the spatial stack (2D maps only)")
     parser.add_argument("--temporal-attention", action=argparse.BooleanOptionalAction, default=True,
                         help="the temporal stack (2D maps only)")
-    parser.add_argument("--cond-drop", type=float, default=cond_drop,
-                        help="condition dropout probability (trains the null condition for guidance)")
-    parser.add_argument("--cond-noise", type=float, default=0.0,
-                        help="largest relative noise added to the text feature (0 = off; see train_gpt)")
-    parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
+    run_options.add_codes_and_condition_arguments(parser, cond_drop)
     run_options.add_bookkeeping_arguments(parser)
 
 

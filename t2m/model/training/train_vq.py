@@ -127,7 +127,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="run directory for checkpoints and logs")
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--window", type=int, default=64, help="frames per training window (multiple of 4)")
+    parser.add_argument("--window", type=int, default=64,
+                        help="frames per training window (a multiple of 2**down-t frames per code)")
     parser.add_argument("--lr", type=float, default=2e-4)
     parser.add_argument("--weight-decay", type=float, default=0.0)
     parser.add_argument("--warmup-steps", type=int, default=500)
@@ -136,10 +137,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, default=256)
     parser.add_argument("--code-dim", type=int, default=256)
     parser.add_argument("--nb-code", type=int, default=512)
-    parser.add_argument("--down-t", type=int, default=2)
+    parser.add_argument("--down-t", type=int, default=2,
+                        help="temporal downsamplings by 2: 2 = 4 frames per code (T2M-GPT), 3 = 8 (T2M-HiFiGPT)")
     parser.add_argument("--depth", type=int, default=3)
     parser.add_argument("--quantizer", choices=QUANTIZERS, default="ema_reset")
-    parser.add_argument("--residual-layers", type=int, default=1)
+    parser.add_argument("--residual-layers", type=int, default=1, help="residual depth R (with --quantizer residual)")
+    parser.add_argument("--shared-codebook", action="store_true",
+                        help="one codebook for every residual depth (T2M-HiFiGPT's RVQ-VAE; --quantizer residual)")
     parser.add_argument("--quantizer-dropout", type=float, default=0.2)
     parser.add_argument("--vel-weight", type=float, default=0.5)
     parser.add_argument("--bone-weight", type=float, default=0.0,
@@ -191,8 +195,13 @@ def main(args: argparse.Namespace) -> int:
     from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
     from t2m.motion.skeleton import get_skeleton
 
-    if args.window % 4 or args.window < 4:
-        raise ValueError(f"--window must be a positive multiple of 4, got {args.window}")
+    if args.down_t < 1:
+        raise ValueError(f"--down-t must be >= 1, got {args.down_t}")
+    frames_per_code = 2**args.down_t
+    if args.window % frames_per_code or args.window < frames_per_code:
+        raise ValueError(f"--window must be a positive multiple of {frames_per_code} (2**down-t), got {args.window}")
+    if args.shared_codebook and args.quantizer != "residual":
+        raise ValueError("--shared-codebook needs --quantizer residual")
     for name in ("steps", "batch_size"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1")
@@ -218,7 +227,7 @@ def main(args: argparse.Namespace) -> int:
     config = VQConfig(
         feat_dim=int(mean.shape[0]), width=args.width, code_dim=args.code_dim, nb_code=args.nb_code,
         down_t=args.down_t, depth=args.depth, quantizer=args.quantizer, residual_layers=args.residual_layers,
-        quantizer_dropout=args.quantizer_dropout,
+        quantizer_dropout=args.quantizer_dropout, shared_codebook=args.shared_codebook,
     )
     model = MotionVQVAE(config)
     out.mkdir(parents=True, exist_ok=True)

@@ -35,7 +35,7 @@ _ORT_DTYPES = {"tensor(float)": "float32", "tensor(int64)": "int64", "tensor(int
                "tensor(float16)": "float16", "tensor(bool)": "bool"}
 
 
-SERVED_FAMILIES = ("gpt", "masked")
+SERVED_FAMILIES = ("gpt", "masked", "hifigpt")
 
 
 def _check_served_family(raw: dict) -> None:
@@ -47,7 +47,8 @@ def _check_served_family(raw: dict) -> None:
 
 
 def _check_family(manifest: Manifest) -> None:
-    """The decoding loops this service has: the GPT over one layer of codes, the masked family over token maps."""
+    """The decoding loops this service has: the GPT over one layer of codes, the masked family over token maps,
+    T2M-HiFiGPT over [steps, R] code maps."""
     if manifest.family == "gpt" and manifest.residual_layers != 1:
         raise BundleError(f"manifest.json: field 'residual_layers' is {manifest.residual_layers}; this service "
                           "samples one code per step and serves single-layer bundles only")

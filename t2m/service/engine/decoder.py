@@ -15,8 +15,8 @@ class Decoder:
         self.feature_dim = feature_dim
 
     def decode(self, codes: np.ndarray) -> np.ndarray:
-        """int64 codes [N] (GPT family) or maps [N, C, R] (masked family) -> float32 [N * frames_per_token,
-        feature_dim] features: one batch row, decoded at once."""
+        """int64 codes [N] (GPT family), [N, R] (HiFiGPT) or maps [N, C, R] (masked family) -> float32
+        [N * frames_per_token, feature_dim] features: one batch row, decoded at once."""
         codes = np.asarray(codes, dtype=np.int64)[None]
         (features,) = self.session.run(["features"], {"codes": codes})
         features = np.asarray(features, dtype=np.float32)

@@ -3,9 +3,10 @@
 Per request: its texts through the text graph as one batch; its segments' codes sampled in lockstep with every other
 request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
 motion.features. Nothing here knows about HTTP. The family-specific part (which codes, from which graphs) is a codes
-object: GptCodes (t2m.decoding.gpt) or MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]); the text
-encoding, the unknown-text check, the single decode and the joints are shared. A streamed request (`on_frames`) of the
-GPT family also gets its frames while its codes are sampled (engine/streaming.py, as far as engine/reach.py allows).
+object: GptCodes (t2m.decoding.gpt), MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]) or HiFiGPTCodes
+(t2m.decoding.hifigpt, code maps [steps, R]); the text encoding, the unknown-text check, the single decode and the
+joints are shared. A streamed request (`on_frames`) of the lockstep families (GPT, T2M-HiFiGPT) also gets its frames
+while its codes are sampled (engine/streaming.py, as far as engine/reach.py allows).
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.gpt_codes import GptCodes
+from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
 from t2m.service.engine.masked_codes import MaskedCodes
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.reach import DecoderReach, probe_reach
@@ -38,6 +40,10 @@ from t2m.service.engine.types import (
 )
 
 __all__ = ["OnnxEngine"]
+
+# manifest family -> the engine's codes object for it
+CODES: dict[str, type[GptCodes | MaskedCodes | HiFiGPTCodes]] = {"gpt": GptCodes, "masked": MaskedCodes,
+                                                                   "hifigpt": HiFiGPTCodes}
 
 log = logging.getLogger(__name__)
 
@@ -60,12 +66,13 @@ class OnnxEngine:
             raise BundleError(f"manifest.json: field 'num_joints' is {manifest.num_joints} but skeleton "
                               f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
-        self.codes: GptCodes | MaskedCodes = MaskedCodes(bundle) if manifest.family == "masked" else GptCodes(bundle)
+        self.codes: GptCodes | MaskedCodes | HiFiGPTCodes = CODES[manifest.family](bundle)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
-        # the masked family's codes exist only at the end: its frames stream once the whole motion is decoded
-        self.reach: DecoderReach | None = (
-            probe_reach(self.decoder.decode, manifest.codebook_size, manifest.frames_per_token)
-            if isinstance(self.codes, GptCodes) else None)
+        # the masked family's codes exist only at the end: its frames stream once the whole motion is decoded;
+        # T2M-HiFiGPT's decoder reads a row of R codes per step
+        self.reach: DecoderReach | None = None if isinstance(self.codes, MaskedCodes) else probe_reach(
+            self.decoder.decode, manifest.codebook_size, manifest.frames_per_token,
+            depth=manifest.residual_layers if isinstance(self.codes, HiFiGPTCodes) else None)
         self.stream_every = stream_every
         self.unknown_text = unknown_text
         info = manifest.caption_index
@@ -82,7 +89,8 @@ class OnnxEngine:
             details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
                         if key in raw}, "unknown_text": self._unknown_text_details(),
                      "streaming": self._streaming_details(),
-                     **({"family": manifest.family, "masked": raw["masked"]} if manifest.masked is not None else {})})
+                     **({"family": manifest.family, manifest.family: raw[manifest.family]}
+                        if manifest.family != "gpt" else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -99,7 +107,8 @@ class OnnxEngine:
                 "every_tokens": self.stream_every}
 
     def _stream_early(self, job: SamplingJob | MaskedJob, request: GenerationRequest) -> None:
-        """Give a streamed request's sampling job a FrameStreamer (GPT family; the masked family streams at the end)."""
+        """Give a streamed request's sampling job a FrameStreamer (the lockstep families; the masked family streams
+        at the end)."""
         if request.on_frames is None or self.reach is None or not isinstance(job, SamplingJob):
             return
         streamer = FrameStreamer(self.decoder.decode, self.skeleton, self.reach, self.limits.frames_per_token,

@@ -12,7 +12,24 @@ from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.text import TextEncoder
 from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
 
-__all__ = ["GptCodes"]
+__all__ = ["GptCodes", "lockstep_job"]
+
+
+def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
+    """A request as a job of the lockstep loops (the GPT's, T2M-HiFiGPT's): a target per segment from its duration
+    (None = free length), checked against max_tokens and top_k against the codebook, naming the field."""
+    targets = [None if s.duration is None else tokens_for_duration(s.duration, limits.fps, limits.frames_per_token)
+               for s in request.segments]
+    for index, target in enumerate(targets):
+        if target is not None and target > limits.max_tokens:
+            raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
+                                    f"{limits.max_tokens}")
+    if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
+        raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+    conds = text.encode([s.text for s in request.segments])
+    return SamplingJob(conds=conds, targets=targets, guidance=request.guidance, temperature=request.temperature,
+                       top_k=request.top_k, rng=np.random.default_rng(request.seed),
+                       cancelled=lambda: request.cancelled)
 
 
 class GptCodes:
@@ -27,19 +44,7 @@ class GptCodes:
         self.end_id = manifest.end_id
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
-        targets = [None if s.duration is None else tokens_for_duration(s.duration, limits.fps,
-                                                                       limits.frames_per_token)
-                   for s in request.segments]
-        for index, target in enumerate(targets):
-            if target is not None and target > limits.max_tokens:
-                raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
-                                        f"{limits.max_tokens}")
-        if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
-            raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
-        conds = text.encode([s.text for s in request.segments])
-        return SamplingJob(conds=conds, targets=targets, guidance=request.guidance,
-                           temperature=request.temperature, top_k=request.top_k,
-                           rng=np.random.default_rng(request.seed), cancelled=lambda: request.cancelled)
+        return lockstep_job(request, text, limits)
 
     def sample(self, jobs: Sequence[SamplingJob], max_tokens: int,
                on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:

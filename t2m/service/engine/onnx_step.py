@@ -1,24 +1,32 @@
 """The decoding loops' steps over onnxruntime: gpt_step.onnx for the GPT loop (t2m.decoding.gpt.GptStep), the masked
-family's masked.onnx and residual.onnx for its loop (t2m.decoding.masked)."""
+family's masked.onnx and residual.onnx for its loop (t2m.decoding.masked), T2M-HiFiGPT's temporal_step.onnx and
+residual_step.onnx for its loop (t2m.decoding.hifigpt)."""
 from __future__ import annotations
 
 import numpy as np
 import onnxruntime as ort
 
-__all__ = ["OnnxGptStep", "OnnxMaskedStep", "OnnxResidualStep"]
+__all__ = ["OnnxGptStep", "OnnxMaskedStep", "OnnxResidualGptStep", "OnnxResidualStep", "OnnxTemporalStep"]
 
 
-class OnnxGptStep:
+class KvCached:
+    """A step graph's key/value cache layout: [n_layer, 2, B, n_head, P, head_dim], empty (P = 0) at the start."""
+
+    def __init__(self, n_layer: int, n_head: int, head_dim: int) -> None:
+        self.n_layer, self.n_head, self.head_dim = n_layer, n_head, head_dim
+
+    def empty_cache(self, batch: int) -> np.ndarray:
+        return np.zeros((self.n_layer, 2, batch, self.n_head, 0, self.head_dim), dtype=np.float32)
+
+
+class OnnxGptStep(KvCached):
     """One call of gpt_step.onnx: (cond, token, position, length, past_kv) -> (logits, present_kv)."""
 
     def __init__(self, session: ort.InferenceSession, n_layer: int, n_head: int, head_dim: int,
                  has_length_input: bool) -> None:
+        super().__init__(n_layer, n_head, head_dim)
         self.session = session
-        self.n_layer, self.n_head, self.head_dim = n_layer, n_head, head_dim
         self.has_length_input = has_length_input
-
-    def empty_cache(self, batch: int) -> np.ndarray:
-        return np.zeros((self.n_layer, 2, batch, self.n_head, 0, self.head_dim), dtype=np.float32)
 
     def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
                  past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,3 +58,36 @@ class OnnxResidualStep:
     def __call__(self, codes: np.ndarray, layer: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:
         (logits,) = self.session.run(["logits"], {"codes": codes, "layer": layer, "cond": cond, "length": length})
         return logits
+
+
+class OnnxTemporalStep(KvCached):
+    """temporal_step.onnx (T2M-HiFiGPT): (cond, codes [B, R], position, length, past_kv) -> (context, stop_logit,
+    present_kv)."""
+
+    def __init__(self, session: ort.InferenceSession, depth: int, n_layer: int, n_head: int, head_dim: int,
+                 has_length_input: bool) -> None:
+        super().__init__(n_layer, n_head, head_dim)
+        self.session, self.depth = session, depth
+        self.has_length_input = has_length_input
+
+    def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        feeds = {"cond": cond, "codes": codes, "position": np.asarray([position], dtype=np.int64), "past_kv": past}
+        if self.has_length_input:
+            feeds["length"] = length
+        context, stop, present = self.session.run(["context", "stop_logit", "present_kv"], feeds)
+        return context, stop, present
+
+
+class OnnxResidualGptStep(KvCached):
+    """residual_step.onnx (T2M-HiFiGPT): (context [B, E], code [B], depth, past_kv) -> (logits [B, K], present_kv)."""
+
+    def __init__(self, session: ort.InferenceSession, n_layer: int, n_head: int, head_dim: int) -> None:
+        super().__init__(n_layer, n_head, head_dim)
+        self.session = session
+
+    def __call__(self, context: np.ndarray, code: np.ndarray, depth: int,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        feeds = {"context": context, "code": code, "depth": np.asarray([depth], dtype=np.int64), "past_kv": past}
+        logits, present = self.session.run(["logits", "present_kv"], feeds)
+        return logits, present

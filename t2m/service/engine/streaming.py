@@ -1,7 +1,8 @@
-"""Frames sent while the GPT family's codes are still being sampled (a request's `on_frames`).
+"""Frames sent while the lockstep families' codes are still being sampled (a request's `on_frames`).
 
-The codes of a request grow one per step and per segment; its motion is the decode of its segments' codes put end to
-end, so the codes known for good are those of its finished segments followed by the first unfinished one's so far.
+The codes of a request grow one per step and per segment (T2M-HiFiGPT: one row of R codes per step); its motion is
+the decode of its segments' codes put end to end, so the codes known for good are those of its finished segments
+followed by the first unfinished one's so far.
 Once codes up to t + reach.ahead are known, the frames of code t are final (engine/reach.py): a window of codes from
 reach.behind before the first unsent code decodes them exactly as the whole decode would (up to onnxruntime's
 rounding, which differs by ~1e-6 between lengths), and their joints follow from the frames before them alone
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +46,7 @@ class FrameStreamer:
         self.sent_codes = 0          # the codes whose frames have been sent
         self.failed = False
 
-    def codes_arrived(self, segments: Sequence[Sequence[int]], done: Sequence[bool]) -> None:
+    def codes_arrived(self, segments: Sequence[Sequence[Any]], done: Sequence[bool]) -> None:
         """After a sampling step: each segment's codes so far and whether it is finished. Never raises: a failure
         stops the early frames (the rest still comes with the whole motion) rather than the batch."""
         if self.failed:
@@ -55,7 +57,7 @@ class FrameStreamer:
             log.exception("early frames failed; the rest of the motion comes whole")
             self.failed = True
 
-    def _send_final(self, segments: Sequence[Sequence[int]], done: Sequence[bool]) -> None:
+    def _send_final(self, segments: Sequence[Sequence[Any]], done: Sequence[bool]) -> None:
         unfinished = next((index for index, finished in enumerate(done) if not finished), None)
         if unfinished is None:
             return   # every segment is finished: the whole decode follows
@@ -65,7 +67,8 @@ class FrameStreamer:
                                                                                            self.sent_codes)):
             return
         start = max(0, self.sent_codes - self.reach.behind)
-        codes = np.concatenate([np.asarray(tokens, dtype=np.int64) for tokens in known])[start:]
+        # (a code map's rows for T2M-HiFiGPT; a segment with no codes yet has no shape to join)
+        codes = np.concatenate([np.asarray(tokens, dtype=np.int64) for tokens in known if len(tokens)])[start:]
         per = self.frames_per_token
         rows = self.decode(codes)[(self.sent_codes - start) * per:(final - start) * per]
         self.sent_codes = final

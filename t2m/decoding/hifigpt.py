@@ -1,0 +1,111 @@
+"""T2M-HiFiGPT's loop: a temporal step per time step, then the residual GPT's R depth steps, every segment of every
+request in lockstep (t2m.decoding.lockstep: cond rows, null rows for guidance, finished rows leave the batch).
+
+At time position p the temporal step reads the condition token (p = 0) or the codes of step p, and returns the
+context h_p and a stop logit. A free segment that has at least one step stops after p steps with probability
+sigmoid(g / temperature), g = the guided stop logit u + s (c - u) (the paper's eq. 16 applied to the stop logits);
+greedy: g > 0. A segment with a target never stops before it and ends at it; none goes past max_tokens. The segments
+that go on then run the residual GPT from h_p with a fresh small cache: at depth d it returns logits for code d
+(guided like the stop, then temperature, top-k and one draw), and the drawn code feeds depth d + 1. The null rows are
+fed the guided choices, as in the GPT family.
+
+Per request and position the random draws are: one uniform per free segment with a step (stop), then per depth one
+uniform per going segment, segments in request order; so a request's codes depend only on its own generator. A
+job's `progress` sees its segments' code rows after every position (the service streams frames from them).
+`TemporalStep` and `ResidualGptStep` are what the loop needs from the networks: the service wraps
+temporal_step.onnx / residual_step.onnx, the PyTorch reference wraps HiFiGPT's step methods.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Protocol
+
+import numpy as np
+
+from t2m.decoding import lockstep
+from t2m.decoding.lockstep import SamplingJob
+from t2m.decoding.tokens import draw_stops, draw_tokens
+
+__all__ = ["ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
+
+
+class TemporalStep(Protocol):
+    """The temporal GPT, one position with its KV cache."""
+
+    depth: int
+
+    def empty_cache(self, batch: int) -> np.ndarray: ...
+
+    def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cond [B, Dt], codes of step `position` [B, R], position, length [B], past) -> (context [B, E], stop logit
+        [B], present)."""
+        ...
+
+
+class ResidualGptStep(Protocol):
+    """The residual GPT, one depth with its own KV cache (fresh at every time step)."""
+
+    def empty_cache(self, batch: int) -> np.ndarray: ...
+
+    def __call__(self, context: np.ndarray, code: np.ndarray, depth: int,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(context [B, E], code of depth - 1 [B], depth, past) -> (logits [B, K], present)."""
+        ...
+
+
+def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Sequence[SamplingJob],
+                     max_tokens: int, on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
+    """Per job, one int64 code map [steps, R] per segment (in order), or None for a job cancelled on the way.
+    `on_step(rows)` is called after each network call."""
+    lockstep.check_targets(jobs, max_tokens)
+    depth = temporal.depth
+    batch = lockstep.start(jobs, temporal.empty_cache)
+    cancelled = [False] * len(jobs)
+    position = 0
+    while len(batch.owner):
+        codes_in = np.stack([(batch.segments[s].tokens or [np.zeros(depth, np.int64)])[-1] for s in batch.owner])
+        context, stop, batch.past = temporal(batch.cond, codes_in, position, batch.length, batch.past)
+        if on_step is not None:
+            on_step(len(batch.owner))
+        rows = lockstep.row_maps(batch.owner)
+        live = []
+        for job, active in lockstep.live_segments(batch, jobs, cancelled):
+            free = [s for s in active if batch.segments[s].target is None and batch.segments[s].tokens]
+            if free:
+                guided = lockstep.guided(job, free, stop[:, None], rows)[:, 0]
+                stops = draw_stops(guided, job.temperature, job.rng, job.greedy)
+                for s, stopped in zip(free, stops):
+                    batch.segments[s].done = bool(stopped)
+            live.append((job, active))
+        context = context[lockstep.drop_finished(batch)]
+        if len(batch.owner):
+            going = [(job, kept) for job, active in live if (kept := [s for s in active if not batch.segments[s].done])]
+            for s, row in depth_loop(residual, context, going, batch.owner, depth, on_step).items():
+                batch.segments[s].tokens.append(row)
+                batch.segments[s].reached(max_tokens)
+            lockstep.drop_finished(batch)
+        for job, active in live:
+            lockstep.report_progress(batch, job, active)
+        position += 1
+    return lockstep.results(batch, cancelled)
+
+
+def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple[SamplingJob, list[int]]],
+                owner: np.ndarray, depth: int, on_step: Callable[[int], None] | None) -> dict[int, np.ndarray]:
+    """The R codes of this time step for every going segment (rows = `owner`, contexts in row order)."""
+    rows = lockstep.row_maps(owner)
+    chosen = {s: np.zeros(depth, dtype=np.int64) for _, active in going for s in active}
+    past = residual.empty_cache(len(owner))
+    code_in = np.zeros(len(owner), dtype=np.int64)
+    for d in range(depth):
+        logits, past = residual(context, code_in, d, past)
+        if on_step is not None:
+            on_step(len(owner))
+        for job, active in going:
+            guided = lockstep.guided(job, active, logits, rows)
+            drawn = draw_tokens(guided, job.temperature, job.top_k, job.rng, job.greedy)
+            for s, code in zip(active, drawn):
+                chosen[s][d] = code
+        code_in = np.asarray([chosen[int(s)][d] for s in owner], dtype=np.int64)
+    return chosen

@@ -1,0 +1,156 @@
+"""What the autoregressive loops (the GPT's, T2M-HiFiGPT's) share: segments stepping in lockstep through a KV cache.
+
+Each segment of each request is its own sequence (condition token, then one entry per time step), so all rows of a
+batch are always at the same position. Per segment there is a cond row and, when its request's guidance != 1, a null
+row (zero condition) after all cond rows; logits are combined as uncond + s * (cond - uncond). A segment with a target
+stops at it; a free one stops when the family's rule says so or at max_tokens. Finished rows leave the batch (and its
+cache) so that a long segment does not make the short ones pay. Randomness comes from each request's own numpy
+Generator, segments in request order, so a request's result does not depend on what shares its batch. A job's
+`progress` sees its segments' steps after every step that gave it some (the service streams frames from them).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from t2m.decoding.tokens import guided_logits
+
+__all__ = ["Batch", "Rows", "SamplingJob", "Segment", "check_targets", "drop_finished", "guided", "live_segments",
+           "report_progress", "results", "row_maps", "start"]
+
+
+@dataclass
+class SamplingJob:
+    """One request's segments in a lockstep batch."""
+
+    conds: np.ndarray                   # float32 [S, Dt] text features, one row per segment
+    targets: Sequence[int | None]       # time steps per segment; None = free length (the family's stop rule)
+    guidance: float
+    temperature: float
+    top_k: int | None
+    rng: np.random.Generator
+    greedy: bool = False
+    cancelled: Callable[[], bool] = field(default=lambda: False)
+    # after each step that gave the job codes: each segment's steps so far and whether it is finished (streaming)
+    progress: Callable[[list[list[Any]], list[bool]], None] | None = None
+
+
+@dataclass
+class Segment:
+    """One segment being generated: its job, its target and what it generated so far (one entry per step)."""
+
+    job: int
+    target: int | None
+    tokens: list[Any] = field(default_factory=list)
+    done: bool = False
+
+    def reached(self, max_tokens: int) -> None:
+        """Done once it holds its target's steps (a free segment: max_tokens)."""
+        if len(self.tokens) == (self.target if self.target is not None else max_tokens):
+            self.done = True
+
+
+@dataclass
+class Batch:
+    """The rows stepping together: row r works for segment `owner[r]`; cond rows come first, null rows after."""
+
+    segments: list[Segment]
+    of_job: list[list[int]]             # job -> its segments' indices
+    cond: np.ndarray                    # float32 [rows, Dt]
+    length: np.ndarray                  # int64 [rows]: the target (0 = free), the length input
+    owner: np.ndarray                   # int64 [rows] -> segment index
+    past: np.ndarray
+
+
+@dataclass(frozen=True)
+class Rows:
+    """Where each live segment's cond row and (guided) null row are in the current batch."""
+
+    cond: dict[int, int]
+    null: dict[int, int]
+
+
+def check_targets(jobs: Sequence[SamplingJob], max_tokens: int) -> None:
+    for job in jobs:
+        for index, target in enumerate(job.targets):
+            if target is not None and not 1 <= target <= max_tokens:
+                raise ValueError(f"segment {index}: target of {target} tokens is outside 1..{max_tokens}")
+
+
+def start(jobs: Sequence[SamplingJob], empty_cache: Callable[[int], np.ndarray]) -> Batch:
+    """One cond row per segment of every job, then one null row per segment of every guided job."""
+    segments: list[Segment] = []
+    of_job: list[list[int]] = []
+    conds: list[np.ndarray] = []
+    for j, job in enumerate(jobs):
+        of_job.append([])
+        for s, target in enumerate(job.targets):
+            of_job[j].append(len(segments))
+            segments.append(Segment(job=j, target=target))
+            conds.append(job.conds[s])
+    owners = list(range(len(segments)))
+    dim = jobs[0].conds.shape[1] if jobs else 0
+    for index, segment in enumerate(segments):
+        if jobs[segment.job].guidance != 1.0:
+            conds.append(np.zeros(dim, dtype=np.float32))
+            owners.append(index)
+    owner = np.asarray(owners, dtype=np.int64)
+    length = np.asarray([segments[s].target or 0 for s in owner], dtype=np.int64)
+    cond = np.asarray(conds, dtype=np.float32).reshape(len(owners), dim)
+    return Batch(segments, of_job, cond, length, owner, empty_cache(len(owner)))
+
+
+def row_maps(owner: np.ndarray) -> Rows:
+    cond_row = {int(s): r for r, s in reversed(list(enumerate(owner)))}   # first row of each segment
+    return Rows(cond_row, {int(s): r for r, s in enumerate(owner) if r != cond_row[int(s)]})
+
+
+def guided(job: SamplingJob, active: Sequence[int], logits: np.ndarray, rows: Rows) -> np.ndarray:
+    """The float64 logits of `active` segments of one job, with its guidance applied."""
+    chosen = logits[[rows.cond[s] for s in active]].astype(np.float64)
+    if job.guidance == 1.0:
+        return chosen
+    return guided_logits(chosen, logits[[rows.null[s] for s in active]].astype(np.float64), job.guidance)
+
+
+def live_segments(batch: Batch, jobs: Sequence[SamplingJob],
+                  cancelled: list[bool]) -> Iterator[tuple[SamplingJob, list[int]]]:
+    """Each job with segments still going, and those segments; a job cancelled since the last step is marked in
+    `cancelled`, its segments done, and skipped."""
+    for j, job in enumerate(jobs):
+        active = [s for s in batch.of_job[j] if not batch.segments[s].done]
+        if not active:
+            continue
+        if job.cancelled():
+            cancelled[j] = True
+            for s in batch.of_job[j]:
+                batch.segments[s].done = True
+            continue
+        yield job, active
+
+
+def report_progress(batch: Batch, job: SamplingJob, active: Sequence[int]) -> None:
+    """After a step in which `active` (segments of `job`, at least one) were live: hand the job's `progress`, if
+    any, every segment's steps so far and whether it is finished."""
+    if job.progress is None:
+        return
+    mine = [batch.segments[s] for s in batch.of_job[batch.segments[active[0]].job]]
+    job.progress([segment.tokens for segment in mine], [segment.done for segment in mine])
+
+
+def drop_finished(batch: Batch) -> np.ndarray:
+    """Remove the rows of finished segments (and their cache); returns the kept rows' mask."""
+    keep = np.asarray([not batch.segments[s].done for s in batch.owner], dtype=bool)
+    if not keep.all():
+        batch.owner, batch.cond, batch.length = batch.owner[keep], batch.cond[keep], batch.length[keep]
+        batch.past = batch.past[:, :, keep]
+    return keep
+
+
+def results(batch: Batch, cancelled: Sequence[bool]) -> list[list[np.ndarray] | None]:
+    """Per job its segments' int64 arrays (one entry per step), or None for a cancelled job."""
+    return [None if cancelled[j] else [np.asarray(batch.segments[s].tokens, dtype=np.int64) for s in indices]
+            for j, indices in enumerate(batch.of_job)]

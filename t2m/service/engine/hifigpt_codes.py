@@ -1,0 +1,45 @@
+"""T2M-HiFiGPT's codes for the engine: per segment a code map [steps, R] from temporal_step.onnx and residual_step.onnx
+through t2m.decoding.hifigpt, every segment of every request stepping in lockstep, each request drawing from its own
+seeded generator.
+
+Requests become jobs exactly as for the GPT family (gpt_codes.lockstep_job): a duration gives round(duration * fps /
+frames_per_token) steps, a null duration lets the stop head end the segment; `guidance` applies to the code logits
+and to the stop logits, `temperature` and `top_k` to the code draws (temperature also to the stop probability).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from t2m.decoding.hifigpt import sample_code_rows
+from t2m.decoding.lockstep import SamplingJob
+from t2m.service.engine.bundle import Bundle
+from t2m.service.engine.gpt_codes import lockstep_job
+from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
+from t2m.service.engine.text import TextEncoder
+from t2m.service.engine.types import GenerationRequest, ModelLimits
+
+__all__ = ["HiFiGPTCodes"]
+
+
+class HiFiGPTCodes:
+    """Requests -> per-segment code maps [steps, R] with the bundle's two step graphs."""
+
+    def __init__(self, bundle: Bundle) -> None:
+        manifest = bundle.manifest
+        block = manifest.hifigpt
+        if block is None:  # pragma: no cover - the engine picks this class for hifigpt bundles only
+            raise ValueError("a hifigpt bundle needs its 'hifigpt' block")
+        self.temporal = OnnxTemporalStep(bundle.sessions["temporal_step.onnx"], manifest.residual_layers,
+                                         block.n_layer_temporal, block.n_head, block.head_dim,
+                                         block.length_conditioning)
+        self.residual = OnnxResidualGptStep(bundle.sessions["residual_step.onnx"], block.n_layer_residual,
+                                            block.n_head, block.head_dim)
+
+    def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
+        return lockstep_job(request, text, limits)
+
+    def sample(self, jobs: Sequence[SamplingJob], max_tokens: int,
+               on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
+        return sample_code_rows(self.temporal, self.residual, jobs, max_tokens, on_step)
