@@ -78,7 +78,7 @@ def default_sizes() -> tuple[GPTConfig, VQConfig, str]:
     return GPTConfig(dropout=0.0), VQConfig(), "default GPTConfig (no t2m/bundles/default/manifest.json)"
 
 
-def median_ms(fn: Callable[[], None], repeats: int) -> float:
+def median_ms(fn: Callable[[], object], repeats: int) -> float:
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
