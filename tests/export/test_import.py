@@ -1,21 +1,33 @@
 """`t2m import t2m-gpt` on checkpoints carrying exactly the released key names (scaled down, and full size as a
 slow test): strict loads, inferred sizes, and end-to-end parity of the bundle with a PyTorch forward of the same
-weights (greedy codes by full-prefix recomputation, decoded features)."""
+weights (greedy codes by full-prefix recomputation, decoded features); a served motion equal to the PyTorch
+reference decode for a seed; the import served beside the default model."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from beside_default import THREE_SENTENCES, check_beside_default
+from served_reference import clip_features, compare_served, gpt_motion, within_rounding
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 from t2m.cli.main import main as t2m
 from t2m.export.graph_export import ort_session
 from t2m.export.parity import ort_greedy_rollout
 from t2m.export.random_bundle import build_random_bundle
-from t2m.export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
+from t2m.export.t2m_gpt_import import (
+    CLIP_REQUIRED,
+    import_t2m_gpt,
+    infer_gpt_config,
+    infer_vq_config,
+    load_release,
+    strip_prefix,
+)
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
@@ -45,6 +57,16 @@ def small_release(tmp_path_factory) -> dict[str, Path]:
     vq = release_vq_state(**SMALL_VQ, seed=1)
     gpt = release_gpt_state(**SMALL_GPT, seed=2, std=0.05)
     return write_release_files(tmp_path_factory.mktemp("release"), vq, gpt)
+
+
+@pytest.fixture(scope="module")
+def clip_import(small_release, small_clip_archive, tmp_path_factory) -> tuple[Path, str]:
+    """`t2m import t2m-gpt ... --clip ViT-B-32.pt -o OUT` (in-process): the bundle and what it printed."""
+    out = tmp_path_factory.mktemp("bundle") / "t2m-gpt"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        assert run_import(small_release, small_clip_archive, out) == 0
+    return out, stdout.getvalue()
 
 
 @torch.no_grad()
@@ -176,18 +198,35 @@ def check_clip_text_graph(bundle: Path, clip: Path) -> float:
     return float(np.abs(features - expected).max())
 
 
-def test_import_with_openais_clip_file_via_cli(small_release, small_clip_archive, tmp_path, capsys):
+def test_import_with_openais_clip_file_via_cli(clip_import, small_release, small_clip_archive):
     """--clip with a file in OpenAI's exact format (TorchScript archive, visual keys, float16): needs no open_clip."""
-    out = tmp_path / "imported"
-    assert run_import(small_release, small_clip_archive, out) == 0, capsys.readouterr().err
+    out, printed = clip_import
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["text_encoder"] == {"kind": "clip", "dim": 512, "max_length": 77, "pooling": "eot",
                                         "normalize": False, "null_condition": "zeros"}
-    report = json.loads(capsys.readouterr().out.split("\nimported T2M-GPT")[0])
+    report = json.loads(printed.split("\nimported T2M-GPT")[0])
     assert report["parity"]["text_encoder"]["max_abs_diff"] <= 1e-5
     assert check_clip_text_graph(out, small_clip_archive) <= 1e-5
     assert "QuickGELU" in (out / "MODEL_CARD.md").read_text()
     check_end_to_end(out, small_release, {**SMALL_VQ}, SMALL_GPT, steps=10)
+
+
+def test_a_served_motion_equals_the_pytorch_reference_decode(clip_import, small_release, small_clip_archive):
+    """The engine over the imported bundle vs the release's modules (load_release) through t2m.model.sampling with the
+    same seed, the PyTorch VQ decode and joints; text from the PyTorch CLIP tower of the same file. Sampled over the
+    whole codebook at the release's guidance 1 (not greedy): two fixed segments and one ended by End (or 50 codes)."""
+    texts = [text for text, _ in THREE_SENTENCES]
+    conds = clip_features(small_clip_archive, texts)
+    models = load_release(small_release["net_last.pth"], small_release["net_best_fid.pth"], small_release["mean.npy"],
+                          small_release["std.npy"])
+    expected = gpt_motion(models, conds, THREE_SENTENCES, seed=7, guidance=1.0)
+    assert [len(c) for c in expected.codes][:2] == [10, 6] and len(np.unique(np.concatenate(expected.codes))) > 10
+    diffs = compare_served(clip_import[0], THREE_SENTENCES, 7, expected, conds)
+    assert within_rounding(diffs), diffs
+
+
+def test_served_beside_the_default_model(clip_import):
+    check_beside_default(clip_import[0])
 
 
 def test_a_wrong_clip_file_is_one_line_and_checked_first(small_release, small_clip_archive, tmp_path, capsys):
