@@ -28,20 +28,25 @@ CASES: dict[str, tuple[tuple[str, float], ...]] = {"10 s, 1 sentence": ONE_SENTE
 
 @dataclass(frozen=True)
 class StageTimes:
-    """Median milliseconds per stage over the repeats (each repeat a fresh seed), for `seconds` of motion."""
+    """Median milliseconds per stage over the repeats (each repeat a fresh seed), for `seconds` of motion, and the
+    median CPU milliseconds of the whole request (this process, all threads): on a machine shared with other work
+    the wall time includes waiting for a core, the CPU time does not."""
 
     text: float
     codes: float
     decode: float
     seconds: float
+    cpu: float
 
     @property
     def total(self) -> float:
         return self.text + self.codes + self.decode
 
 
-def time_request(engine: OnnxEngine, request: GenerationRequest) -> tuple[float, float, float]:
-    """One request through the engine's own stages (what OnnxEngine.generate_batch does for a batch of one)."""
+def time_request(engine: OnnxEngine, request: GenerationRequest) -> tuple[float, float, float, float]:
+    """One request through the engine's own stages (what OnnxEngine.generate_batch does for a batch of one): wall ms
+    of text, codes and decode, and CPU ms of the whole request."""
+    cpu_start = time.process_time()
     start = time.perf_counter()
     job = engine.codes.job(request, engine.text, engine.limits)
     warnings = engine.unknown_text_warnings([s.text for s in request.segments], job.conds)
@@ -53,7 +58,8 @@ def time_request(engine: OnnxEngine, request: GenerationRequest) -> tuple[float,
         raise RuntimeError("the benchmark request was cancelled")
     engine._motion(request, codes, warnings)
     end = time.perf_counter()
-    return (after_text - start) * 1e3, (after_codes - after_text) * 1e3, (end - after_codes) * 1e3
+    cpu = (time.process_time() - cpu_start) * 1e3
+    return (after_text - start) * 1e3, (after_codes - after_text) * 1e3, (end - after_codes) * 1e3, cpu
 
 
 def fit_segments(segments: Sequence[tuple[str, float]], limits: ModelLimits) -> list[tuple[str, float]]:
@@ -77,8 +83,8 @@ def bench_engine(engine: OnnxEngine, segments: Sequence[tuple[str, float]], repe
         request = GenerationRequest(segments=[SegmentRequest(text, duration) for text, duration in segments],
                                     seed=seed, guidance=guidance)
         samples.append(time_request(engine, request))
-    text, codes, decode = (statistics.median(stage) for stage in zip(*samples[1:]))
-    return StageTimes(text, codes, decode, motion_seconds(segments, engine.limits))
+    text, codes, decode, cpu = (statistics.median(stage) for stage in zip(*samples[1:]))
+    return StageTimes(text, codes, decode, motion_seconds(segments, engine.limits), cpu)
 
 
 def describe(engine: OnnxEngine) -> str:
@@ -100,8 +106,9 @@ def run_bundle_bench(bundles: Sequence[Path], repeats: int = 5, threads: int | N
     for line in describe_machine(threads):
         echo(line)
     echo("")
-    echo("| model | family / decoding | request | s motion | ms text | ms codes | ms decode + joints | ms total |")
-    echo("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |")
+    echo("| model | family / decoding | request | s motion | ms text | ms codes | ms decode + joints | ms total "
+         "| ms CPU |")
+    echo("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     results: dict[str, dict[str, StageTimes]] = {}
     for engine in engines:
         name = engine.limits.name
@@ -110,9 +117,10 @@ def run_bundle_bench(bundles: Sequence[Path], repeats: int = 5, threads: int | N
             times = bench_engine(engine, segments, repeats)
             results[name][label] = times
             echo(f"| {name} | {describe(engine)} | {label} | {times.seconds:g} | {times.text:.1f} | {times.codes:.1f} |"
-                 f" {times.decode:.1f} | {times.total:.1f} |")
+                 f" {times.decode:.1f} | {times.total:.1f} | {times.cpu:.1f} |")
     echo("")
     echo("- each request at the model's default guidance (cond + null rows in one batch); seeds 1..N, a warm-up "
          "request first; the stream's sentences are generated for 3 + 3 + 4 s, codes concatenated, decoded once; "
-         "a segment longer than the model makes is cut to its longest (s motion)")
+         "a segment longer than the model makes is cut to its longest (s motion); ms CPU: the process's CPU time for "
+         "the whole request (all threads), the work without the waiting on a shared machine")
     return results
