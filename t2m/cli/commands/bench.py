@@ -46,13 +46,13 @@ def run(args: argparse.Namespace) -> int:
 
 def run_bundles(args: argparse.Namespace) -> int:
     from t2m.bundle import BundleError
-    from t2m.bundles import DEFAULT_BUNDLE
+    from t2m.bundles import bundle_argument
     from t2m.cli.main import CliError
     from t2m.export.bundle_bench import run_bundle_bench
 
     if args.repeats < 1:
         raise CliError("--repeats must be >= 1")
-    paths = [DEFAULT_BUNDLE if str(path) == "default" else path for path in args.bundle]
+    paths = [bundle_argument(path) for path in args.bundle]
     for path in paths:
         if not (path / "manifest.json").is_file():
             raise CliError(f"--bundle {path}: no manifest.json there (not a bundle directory)")

@@ -15,8 +15,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
     parser.add_argument("--model", type=Path, action="append", default=None, metavar="DIR",
-                        help="model bundle directory; repeat to serve several (the first is the default, a request "
-                             "picks another by its manifest name). Given, it names every model served "
+                        help="model bundle directory ('default': the embedded model); repeat to serve several (the "
+                             "first is the default, a request picks another by its manifest name). Given, it names "
+                             "every model served "
                              "(T2M_EXTRA_MODEL_DIRS is replaced); default: T2M_MODEL_DIR (+ T2M_EXTRA_MODEL_DIRS), "
                              "else the embedded t2m/bundles/default")
     parser.add_argument("--workers", type=int, default=1,
@@ -27,10 +28,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def model_environment(models: Sequence[Path]) -> dict[str, str]:
     """The T2M_* variables that carry `--model` choices into every worker process: the first bundle is the default
-    (T2M_BUNDLE_PATH, which settings read first), the others T2M_EXTRA_MODEL_DIRS (comma-separated)."""
+    (T2M_BUNDLE_PATH, which settings read first), the others T2M_EXTRA_MODEL_DIRS (comma-separated); the word
+    `default` is the embedded model."""
+    from t2m.bundles import bundle_argument
     from t2m.cli.main import CliError
 
-    paths = [str(Path(model).resolve()) for model in models]
+    paths = [str(bundle_argument(Path(model)).resolve()) for model in models]
     for path in paths:
         if "," in path:
             raise CliError(f"--model {path}: a bundle path with a comma cannot be served next to others "
