@@ -1,21 +1,33 @@
 """`t2m import t2m-gpt` on checkpoints carrying exactly the released key names (scaled down, and full size as a
 slow test): strict loads, inferred sizes, and end-to-end parity of the bundle with a PyTorch forward of the same
-weights (greedy codes by full-prefix recomputation, decoded features)."""
+weights (greedy codes by full-prefix recomputation, decoded features); a served motion equal to the PyTorch
+reference decode for a seed; the import served beside the default model."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from beside_default import THREE_SENTENCES, check_beside_default
+from served_reference import clip_features, compare_served, gpt_motion, within_rounding
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 from t2m.cli.main import main as t2m
 from t2m.export.graph_export import ort_session
 from t2m.export.parity import ort_greedy_rollout
 from t2m.export.random_bundle import build_random_bundle
-from t2m.export.t2m_gpt_import import CLIP_REQUIRED, import_t2m_gpt, infer_gpt_config, infer_vq_config, strip_prefix
+from t2m.export.t2m_gpt_import import (
+    CLIP_REQUIRED,
+    import_t2m_gpt,
+    infer_gpt_config,
+    infer_vq_config,
+    load_release,
+    strip_prefix,
+)
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
@@ -47,6 +59,16 @@ def small_release(tmp_path_factory) -> dict[str, Path]:
     return write_release_files(tmp_path_factory.mktemp("release"), vq, gpt)
 
 
+@pytest.fixture(scope="module")
+def clip_import(small_release, small_clip_archive, tmp_path_factory) -> tuple[Path, str]:
+    """`t2m import t2m-gpt ... --clip ViT-B-32.pt -o OUT` (in-process): the bundle and what it printed."""
+    out = tmp_path_factory.mktemp("bundle") / "t2m-gpt"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        assert run_import(small_release, small_clip_archive, out) == 0
+    return out, stdout.getvalue()
+
+
 @torch.no_grad()
 def reference_rollout(gpt_state: dict, config: GPTConfig, cond: np.ndarray, steps: int) -> np.ndarray:
     """T2M-GPT's way: batch 1, the whole prefix recomputed every step, greedy (End masked for a fixed length)."""
@@ -59,7 +81,9 @@ def reference_rollout(gpt_state: dict, config: GPTConfig, cond: np.ndarray, step
     return codes.numpy()
 
 
-def check_end_to_end(bundle: Path, files: dict[str, Path], vq_sizes: dict, gpt_sizes: dict, steps: int) -> None:
+def check_end_to_end(bundle: Path, files: dict[str, Path], vq_sizes: dict, gpt_sizes: dict, steps: int) -> float:
+    """Greedy codes of the bundle's step graph identical to T2M-GPT's way of sampling; returns max |feature diff| of
+    decoder.onnx vs the PyTorch decode of those codes."""
     manifest = json.loads((bundle / "manifest.json").read_text())
     gpt_state = torch.load(files["net_best_fid.pth"], weights_only=True)["trans"]
     vq_state = strip_prefix(torch.load(files["net_last.pth"], weights_only=True)["net"], "vqvae.")
@@ -84,6 +108,7 @@ def check_end_to_end(bundle: Path, files: dict[str, Path], vq_sizes: dict, gpt_s
     (features,) = ort_session(bundle / "decoder.onnx").run(None, {"codes": expected_codes})
     assert features.shape == (1, 4 * steps, 263)
     assert np.abs(features - expected).max() <= 1e-4
+    return float(np.abs(features - expected).max())
 
 
 def test_release_key_names_load_strictly_with_inferred_sizes():
@@ -176,18 +201,35 @@ def check_clip_text_graph(bundle: Path, clip: Path) -> float:
     return float(np.abs(features - expected).max())
 
 
-def test_import_with_openais_clip_file_via_cli(small_release, small_clip_archive, tmp_path, capsys):
+def test_import_with_openais_clip_file_via_cli(clip_import, small_release, small_clip_archive):
     """--clip with a file in OpenAI's exact format (TorchScript archive, visual keys, float16): needs no open_clip."""
-    out = tmp_path / "imported"
-    assert run_import(small_release, small_clip_archive, out) == 0, capsys.readouterr().err
+    out, printed = clip_import
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["text_encoder"] == {"kind": "clip", "dim": 512, "max_length": 77, "pooling": "eot",
                                         "normalize": False, "null_condition": "zeros"}
-    report = json.loads(capsys.readouterr().out.split("\nimported T2M-GPT")[0])
+    report = json.loads(printed.split("\nimported T2M-GPT")[0])
     assert report["parity"]["text_encoder"]["max_abs_diff"] <= 1e-5
     assert check_clip_text_graph(out, small_clip_archive) <= 1e-5
     assert "QuickGELU" in (out / "MODEL_CARD.md").read_text()
     check_end_to_end(out, small_release, {**SMALL_VQ}, SMALL_GPT, steps=10)
+
+
+def test_a_served_motion_equals_the_pytorch_reference_decode(clip_import, small_release, small_clip_archive):
+    """The engine over the imported bundle vs the release's modules (load_release) through t2m.model.sampling with the
+    same seed, the PyTorch VQ decode and joints; text from the PyTorch CLIP tower of the same file. Sampled over the
+    whole codebook at the release's guidance 1 (not greedy): two fixed segments and one ended by End (or 50 codes)."""
+    texts = [text for text, _ in THREE_SENTENCES]
+    conds = clip_features(small_clip_archive, texts)
+    models = load_release(small_release["net_last.pth"], small_release["net_best_fid.pth"], small_release["mean.npy"],
+                          small_release["std.npy"])
+    expected = gpt_motion(models, conds, THREE_SENTENCES, seed=7, guidance=1.0)
+    assert [len(c) for c in expected.codes][:2] == [10, 6] and len(np.unique(np.concatenate(expected.codes))) > 10
+    diffs = compare_served(clip_import[0], THREE_SENTENCES, 7, expected, conds)
+    assert within_rounding(diffs), diffs
+
+
+def test_served_beside_the_default_model(clip_import):
+    check_beside_default(clip_import[0])
 
 
 def test_a_wrong_clip_file_is_one_line_and_checked_first(small_release, small_clip_archive, tmp_path, capsys):
@@ -207,8 +249,9 @@ def test_a_wrong_clip_file_is_one_line_and_checked_first(small_release, small_cl
 
 
 @pytest.mark.slow
-def test_full_release_shapes_import_end_to_end(tmp_path, clip_sized_text_bundle):
-    """228M-parameter GPT + 19.7M VQ with the release's shapes (random values): ~1 GB bundle, a few minutes."""
+def test_full_release_shapes_import_end_to_end(tmp_path, clip_sized_text_bundle, capsys):
+    """228M-parameter GPT + 19.7M VQ with the release's shapes (random values): ~1 GB bundle, a few minutes. Prints
+    the measured figures (docs/serving-released-models.md)."""
     vq = release_vq_state(seed=1)
     gpt = release_gpt_state(seed=2, std=0.02)
     assert len(vq) == 67 and len(gpt) == 314
@@ -219,8 +262,15 @@ def test_full_release_shapes_import_end_to_end(tmp_path, clip_sized_text_bundle)
                                       files["std.npy"], out, text_encoder_bundle=clip_sized_text_bundle)
     assert manifest["gpt"]["n_layer"] == 18 and manifest["gpt"]["n_head"] == 16 and manifest["gpt"]["head_dim"] == 64
     assert checks.parity["gpt_step"]["codes_identical"] and checks.parity["gpt_step"]["max_abs_logit_diff"] <= 1e-4
-    check_end_to_end(out, files, {"width": 512, "code_dim": 512, "nb_code": 512, "down_t": 2, "depth": 3},
-                     {"codebook": 512, "embed": 1024, "layers": (9, 9), "block": 51, "text_dim": 512}, steps=50)
+    end_to_end = check_end_to_end(out, files, {"width": 512, "code_dim": 512, "nb_code": 512, "down_t": 2, "depth": 3},
+                                  {"codebook": 512, "embed": 1024, "layers": (9, 9), "block": 51, "text_dim": 512},
+                                  steps=50)
+    gpt, decoder = checks.parity["gpt_step"], checks.parity["decoder"]
+    with capsys.disabled():
+        print(f"\nreleased sizes: step graph vs PyTorch KV-cached step, 50-step greedy rollout: max |logit diff| "
+              f"{gpt['max_abs_logit_diff']:.2e}, vs full-prefix recomputation {gpt['max_abs_diff_vs_recompute']:.2e}, "
+              f"codes identical {gpt['codes_identical']}; decoder.onnx on random codes {decoder['max_abs_diff']:.2e}; "
+              f"greedy codes vs T2M-GPT's batch-1 recomputation identical, their decode {end_to_end:.2e}")
 
 
 @pytest.mark.slow

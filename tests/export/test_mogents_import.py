@@ -3,7 +3,8 @@ compared with an independent re-implementation of MoGenTS's computation, quirks 
 (tests/export/mogents_reference.py; its 1D models are momask_reference.py's): logits of the loaded modules and of
 the bundle's graphs, token maps of the service's loop over the bundle vs MoGenTS's generate loops at top-k 1 (both
 branches), decoded features vs the reference fused decode; the CLI end to end into a served bundle; one line for
-each refusal. Small sizes here; the released sizes in the slow test."""
+each refusal; a served motion equal to the PyTorch reference decode at the release's settings for a seed; the import
+served beside the default model. Small sizes here; the released sizes in the slow test."""
 from __future__ import annotations
 
 import contextlib
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from beside_default import THREE_SENTENCES, check_beside_default
 from mogents_reference import ReferenceMask2d, ReferenceResidual2d, fused_decode, generate_ts
 from mogents_release_files import RELEASE, SMALL, MogentsSizes, MogentsStates, release_states, write_release
 from momask_reference import (
@@ -27,6 +29,7 @@ from momask_reference import (
     generate_residual_stage,
     remask_count,
 )
+from served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 from t2m.cli.main import main as t2m
 from t2m.decoding.masked import remask_counts
@@ -400,6 +403,28 @@ def test_the_imported_bundle_serves_a_stream(imported):
         assert client.post("/generate", json=body).json()["frames"] == data["frames"]     # same seed, same motion
         free = client.post("/generate", json={**body, "segments": [{"text": "a person bows", "duration": None}]})
         assert free.status_code == 200, free.text
+
+
+def test_a_served_motion_equals_the_pytorch_reference_decode(release, clip_archive, imported):
+    """The engine over the imported bundle vs the release's modules (load_mogents) through the shared loop with the
+    same seed at the release's settings (sampled: top-k 3 / 3 (ts) and 4 / 4 (aux) here, 26 / 26 and 52 / 52
+    released; guidance 4 / 5; both generators per segment from one generator; the third segment's rows drawn from
+    the length estimator), the PyTorch fused decode and joints; text from the PyTorch CLIP tower of the same file."""
+    conds = clip_features(clip_archive, [text for text, _ in THREE_SENTENCES])
+    models = load_mogents(locate_release(release.logs, {}))
+    decoding, (aux_top_k, aux_residual_top_k) = release_decoding(models.vq)
+    generators = [Generator(models.masked, models.residual, decoding.top_k, decoding.residual_top_k),
+                  Generator(models.masked_aux, models.residual_aux, aux_top_k, aux_residual_top_k)]
+    expected = masked_motion(generators, decoding, models.vq, models.mean, models.std, models.length, conds,
+                             THREE_SENTENCES, seed=7, max_tokens=models.masked.config.max_tokens)
+    assert [c.shape[:2] for c in expected.codes][:2] == [(10, 7), (6, 7)]
+    assert len(np.unique(expected.codes[0][:, :6])) > 10 and len(np.unique(expected.codes[0][:, 6])) > 10
+    diffs = compare_served(imported[0], THREE_SENTENCES, 7, expected, conds)
+    assert within_rounding(diffs), diffs
+
+
+def test_served_beside_the_default_model(imported):
+    check_beside_default(imported[0])
 
 
 def test_latest_files_and_explicit_options(release, tmp_path, clip_archive):

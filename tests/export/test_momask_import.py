@@ -2,7 +2,8 @@
 with an independent re-implementation of MoMask's computation (tests/export/momask_reference.py): logits of
 the loaded modules and of the bundle's graphs, token maps of the service's loop over the bundle vs MoMask's
 ``generate`` at top-k 1, decoded features vs the reference RVQ decode; the CLI end to end into a served bundle; one
-line for each refusal. Small sizes here; the released sizes in the slow test."""
+line for each refusal; a served motion equal to the PyTorch reference decode at the release's settings for a seed;
+the import served beside the default model. Small sizes here; the released sizes in the slow test."""
 from __future__ import annotations
 
 import dataclasses
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from beside_default import THREE_SENTENCES, check_beside_default
 from momask_reference import (
     ReferenceMaskTransformer,
     ReferenceResidualTransformer,
@@ -24,6 +26,7 @@ from momask_reference import (
     rvq_decode,
 )
 from momask_release_files import RELEASE, SMALL, MomaskSizes, ReleaseStates, release_states, write_release
+from served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 from t2m.cli.main import main as t2m
 from t2m.decoding.masked import remask_counts
@@ -318,6 +321,26 @@ def test_the_imported_bundle_serves_a_stream(imported):
         free = client.post("/generate", json={**body, "segments": [*body["segments"][:1],
                                                                      {"text": "a person bows", "duration": None}]})
         assert free.status_code == 200, free.text
+
+
+def test_a_served_motion_equals_the_pytorch_reference_decode(release, clip_archive, imported):
+    """The engine over the imported bundle vs the release's modules (load_momask) through the shared loop with the
+    same seed at the release's settings (sampled: top-k 7 of 64 here, 52 of 512 released; guidance 4 / 5; the third
+    segment's rows drawn from the length estimator), the PyTorch RVQ decode and joints; text from the PyTorch CLIP
+    tower of the same file."""
+    conds = clip_features(clip_archive, [text for text, _ in THREE_SENTENCES])
+    models = load_momask(locate_release(release.root, {}))
+    decoding = release_decoding("HumanML3D", models.vq.config.nb_code)
+    expected = masked_motion([Generator(models.masked, models.residual, decoding.top_k, decoding.residual_top_k)],
+                             decoding, models.vq, models.mean, models.std, models.length, conds, THREE_SENTENCES,
+                             seed=7, max_tokens=models.masked.config.max_tokens)
+    assert [len(c) for c in expected.codes][:2] == [10, 6] and len(np.unique(expected.codes[0][..., 0])) > 5
+    diffs = compare_served(imported[0], THREE_SENTENCES, 7, expected, conds)
+    assert within_rounding(diffs), diffs
+
+
+def test_served_beside_the_default_model(imported):
+    check_beside_default(imported[0])
 
 
 def test_without_the_length_estimator_one_warning_and_no_free_length(tmp_path, clip_archive, caplog):

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -110,6 +111,15 @@ def test_serve_command_runs_the_service(random_bundle):
     finally:
         process.terminate()
         process.wait(10)
+
+
+def test_serve_model_default_is_the_embedded_model(tmp_path):
+    """`t2m serve --model default --model DIR`: the embedded model first (the default), DIR beside it."""
+    from t2m.bundles import DEFAULT_BUNDLE
+    from t2m.cli.commands.serve import model_environment
+
+    assert model_environment([Path("default"), tmp_path / "momask"]) == {
+        "T2M_BUNDLE_PATH": str(DEFAULT_BUNDLE), "T2M_EXTRA_MODEL_DIRS": str((tmp_path / "momask").resolve())}
 
 
 def test_serve_refuses_a_missing_bundle(tmp_path, capsys, monkeypatch):

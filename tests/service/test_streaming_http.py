@@ -28,8 +28,9 @@ def messages(response) -> list[dict]:
     return [json.loads(line) for line in response.text.splitlines()]
 
 
-def check_stream_equals_answer(lines: list[dict], whole: dict) -> list[int]:
-    """The stream against the json answer of the same request: start, contiguous frames, end; the chunk sizes."""
+def check_stream_equals_answer(lines: list[dict], whole: dict, tolerance: float = ROUNDING) -> list[int]:
+    """The stream against the json answer of the same request: start, contiguous frames (to `tolerance`), end; the
+    chunk sizes."""
     start, chunks, end = lines[0], lines[1:-1], lines[-1]
     assert start == {"type": "start", "fps": whole["fps"], "joints": whole["joints"], "parents": whole["parents"],
                      "model": whole["model"], "seed": whole["seed"]}
@@ -38,7 +39,7 @@ def check_stream_equals_answer(lines: list[dict], whole: dict) -> list[int]:
     frames = np.concatenate([np.asarray(chunk["frames"]) for chunk in chunks])
     expected = np.asarray(whole["frames"])
     assert frames.shape == expected.shape
-    assert np.abs(frames - expected).max() <= ROUNDING
+    assert np.abs(frames - expected).max() <= tolerance
     assert end == {"type": "end", **{k: v for k, v in whole.items() if k != "frames"}, "frame_count": len(expected)}
     return [len(chunk["frames"]) for chunk in chunks]
 
