@@ -26,11 +26,11 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "export"))   # the release writers are test helpers
 
 from mogents_release_files import RELEASE as MOGENTS_RELEASE  # type: ignore[import-not-found]  # noqa: E402
-from mogents_release_files import release_states as mogents_states  # type: ignore[import-not-found]  # noqa: E402
-from mogents_release_files import write_release as write_mogents  # type: ignore[import-not-found]  # noqa: E402
+from mogents_release_files import release_states as mogents_states  # noqa: E402
+from mogents_release_files import write_release as write_mogents  # noqa: E402
 from momask_release_files import RELEASE as MOMASK_RELEASE  # type: ignore[import-not-found]  # noqa: E402
-from momask_release_files import release_states as momask_states  # type: ignore[import-not-found]  # noqa: E402
-from momask_release_files import write_release as write_momask  # type: ignore[import-not-found]  # noqa: E402
+from momask_release_files import release_states as momask_states  # noqa: E402
+from momask_release_files import write_release as write_momask  # noqa: E402
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]  # noqa: E402
 
 from t2m.export.bundle_bench import run_bundle_bench  # noqa: E402
