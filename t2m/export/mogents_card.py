@@ -5,12 +5,9 @@ Kept apart from the importer so the statement of exactness is one readable text 
 """
 from __future__ import annotations
 
-from pathlib import Path
-
-from torch import nn
-
 from t2m.export.masked_exporter import MaskedDecoding
 from t2m.export.mogents_files import DEMO_STEPS, ImportedMogents
+from t2m.export.momask_card import release_file, trained_parameters
 from t2m.export.momask_files import kit_fps_note
 from t2m.export.momask_import import release_top_k
 
@@ -36,13 +33,6 @@ VERIFIED = ("at the released sizes with random weights, logits of the imported m
             "residual stage that draws the mask id); decoded features vs the reference fused decode 1.9e-5")
 
 
-def _parameters(module: nn.Module) -> int:
-    """Trained parameters (as the facts count them): codebooks and 2D positional tables are buffers."""
-    return sum(parameter.numel() for parameter in module.parameters())
-
-
-def _file(path: Path) -> str:
-    return f"{path.parent.parent.name}/{path.parent.name}/{path.name}"
 
 
 def release_notes(models: ImportedMogents, decoding: MaskedDecoding, heads: int) -> tuple[str, dict[str, str], str]:
@@ -63,7 +53,8 @@ def release_notes(models: ImportedMogents, decoding: MaskedDecoding, heads: int)
         f"Imported from MoGenTS's released checkpoints ({f.dataset}) with `t2m import mogents`; every tensor's "
         "name and shape checked, strict loads.", "",
         "| network | file | key | parameters |", "| --- | --- | --- | --- |",
-        *[f"| {role} | `{_file(path)}` | `{key}` | {_parameters(module):,} |" for role, path, key, module in rows],
+        *[f"| {role} | `{release_file(path)}` | `{key}` | {trained_parameters(module):,} |"
+          for role, path, key, module in rows],
         f"| de-normalisation | `{f.mean.parent.parent.name}/meta/{f.mean.name}`, `{f.std.name}` | | |", "",
         f"- fused VQ-VAE: width {v.width}; 2D branch {v.residual_layers} codebooks of {v.nb_code} x {v.code_dim}"
         f" over {v.columns} joint columns, `linear_merge` per time step; 1D branch {v.residual_layers} codebooks"

@@ -5,6 +5,8 @@ Kept apart from the importer so the statement of exactness is one readable text 
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 from torch import nn
 
 from t2m.export.masked_exporter import MaskedDecoding
@@ -31,9 +33,14 @@ VERIFIED = ("at the released sizes with random weights, logits of the imported m
             "reference RVQ decode 7.4e-6")
 
 
-def _parameters(module: nn.Module) -> int:
-    """Trained parameters (as the facts count them): the VQ's codebooks and the positional tables are buffers."""
+def trained_parameters(module: nn.Module) -> int:
+    """Trained parameters (as the facts count them): codebooks and sinusoidal positional tables are buffers."""
     return sum(parameter.numel() for parameter in module.parameters())
+
+
+def release_file(path: Path) -> str:
+    """A release file as the card names it: run folder / subfolder / file."""
+    return f"{path.parent.parent.name}/{path.parent.name}/{path.name}"
 
 
 def release_notes(models: ImportedMomask, decoding: MaskedDecoding, heads: int) -> tuple[str, dict[str, str], str]:
@@ -51,7 +58,7 @@ def release_notes(models: ImportedMomask, decoding: MaskedDecoding, heads: int) 
         f"Imported from MoMask's released checkpoints ({f.dataset}) with `t2m import momask`; every tensor's name and "
         "shape checked, strict loads.", "",
         "| network | file | key | parameters |", "| --- | --- | --- | --- |",
-        *[f"| {role} | `{path.parent.parent.name}/{path.parent.name}/{path.name}` | `{key}` | {_parameters(module):,} |"
+        *[f"| {role} | `{release_file(path)}` | `{key}` | {trained_parameters(module):,} |"
           for role, path, key, module in rows],
         f"| de-normalisation | `{f.mean.parent.parent.name}/meta/{f.mean.name}`, `{f.std.name}` | | |", "",
         f"- RVQ-VAE: width {v.width}, code dim {v.code_dim}, {v.residual_layers} codebooks of {v.nb_code} codes"
