@@ -164,6 +164,8 @@ OPTIONAL_FIELDS: dict[str, tuple[Check, str]] = {
     "masked.residual_temperature": (lambda v: _is_number(v) and v > 0, "null or a number > 0"),
     "quantization.masked": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
     "quantization.residual": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.temporal_step": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.residual_step": (_is_optional_str, "null or a string such as 'int8-dynamic'"),
     "masked.temperature": (lambda v: _is_number(v) and v > 0, "null or a number > 0"),
     "masked.residual_mask_class": (_is_bool, "true or false"),
     "masked.branches": (lambda v: isinstance(v, list), "a list of branch objects"),

@@ -25,7 +25,7 @@ from t2m.export.bundle import (
     render_family_card,
     write_bundle,
 )
-from t2m.export.exporter import GROSS_PARITY_ERROR, TextSource
+from t2m.export.exporter import GROSS_PARITY_ERROR, INT8_LABEL, TextSource, quantize_in_place, text_int8_line
 from t2m.export.onnx_decoder import export_decoder
 from t2m.export.onnx_hifigpt import export_residual_step, export_temporal_step, rollout_parity
 from t2m.model.networks.hifigpt import HiFiGPT, check_fits_vq, vq_codebooks
@@ -36,6 +36,9 @@ log = logging.getLogger(__name__)
 __all__ = ["check_hifigpt_models", "export_hifigpt_bundle", "export_hifigpt_from_runs"]
 
 GRAPHS = ("text_encoder.onnx", "tokenizer.json", "temporal_step.onnx", "residual_step.onnx", "decoder.onnx")
+# graphs that may be int8 (dynamic quantisation, 7-bit weights): --int8 name -> the graph's manifest key; the decoder
+# stays float32 (a small share of the bytes, and the motion's last word)
+INT8_GRAPHS = {"text": "text_encoder", "temporal": "temporal_step", "residual": "residual_step"}
 
 
 @dataclass
@@ -43,8 +46,30 @@ class HiFiGPTExportChecks:
     """What export measured against PyTorch (float32)."""
 
     parity: dict[str, Any] = field(default_factory=dict)
+    int8: dict[str, Any] = field(default_factory=dict)
 
     def model_card_section(self) -> str:
+        return "\n".join(part for part in (self._parity_section(), self._int8_section()) if part)
+
+    def _int8_section(self) -> str:
+        if not self.int8:
+            return ""
+        lines = ["## int8 dynamic quantisation (vs the float32 graphs)", ""]
+        if "text_encoder" in self.int8:
+            lines.append(text_int8_line(self.int8["text_encoder"]))
+        if "rollout" in self.int8:
+            r = self.int8["rollout"]
+            graphs = " and ".join(f"{key}.onnx ({self.int8[key]['fp32_bytes'] / 1e6:.1f} -> "
+                                  f"{self.int8[key]['int8_bytes'] / 1e6:.1f} MB)"
+                                  for key in ("temporal_step", "residual_step") if key in self.int8)
+            stops = "identical" if r["steps_identical"] else "differ"
+            lines.append(f"- {graphs}: the seeded guided rollout of the export checks, int8 graphs vs PyTorch: "
+                         f"{r['differing_codes']} codes differ, stops {stops}"
+                         f" (steps {r['steps']}); max |diff| context {r['max_abs_context_diff']:.2e}, stop logit "
+                         f"{r['max_abs_stop_diff']:.2e}, code logits {r['max_abs_logit_diff']:.2e}")
+        return "\n".join(lines + [""])
+
+    def _parity_section(self) -> str:
         if not self.parity:
             return ""
         r, d = self.parity["rollout"], self.parity["decoder"]
@@ -113,8 +138,13 @@ def export_hifigpt_bundle(
     out_dir: str | Path, *, vq: MotionVQVAE, model: HiFiGPT, mean: np.ndarray, std: np.ndarray,
     text_source: TextSource, name: str, version: str, training_data: Mapping[str, str], license: str,
     unconditional_branch: bool = True, default_guidance: float = 3.0, notes: str = "", check_parity: bool = True,
+    int8: frozenset[str] = frozenset(),
 ) -> tuple[dict[str, Any], HiFiGPTExportChecks]:
-    """Export, check against PyTorch, write and verify a hifigpt bundle; returns (manifest, checks)."""
+    """Export, check against PyTorch, write and verify a hifigpt bundle; returns (manifest, checks). ``int8`` names
+    graphs of INT8_GRAPHS to quantise after the float32 checks (each one's price measured into the card)."""
+    unknown = set(int8) - set(INT8_GRAPHS)
+    if unknown:
+        raise ValueError(f"int8: {', '.join(sorted(unknown))} not among {', '.join(INT8_GRAPHS)}")
     check_hifigpt_models(vq, model)
     if default_guidance < 0:
         raise ValueError(f"default guidance must be >= 0, got {default_guidance}")
@@ -147,16 +177,43 @@ def export_hifigpt_bundle(
     if check_parity:
         log.info("checking onnxruntime against PyTorch (float32)")
         checks.parity = _parity(out_dir, vq, model, text_source, default_guidance if unconditional_branch else 1.0)
+    _quantize(out_dir, int8, model, manifest, checks, default_guidance if unconditional_branch else 1.0)
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_hifigpt_model_card(manifest, card_notes), encoding="utf-8")
     names = [*GRAPHS, "mean.npy", "std.npy", "MODEL_CARD.md"]
     return write_bundle(out_dir, {name: out_dir / name for name in names}, manifest), checks
 
 
+def _quantize(out_dir: Path, int8: frozenset[str], model: HiFiGPT, manifest: dict[str, Any],
+              checks: HiFiGPTExportChecks, guidance: float) -> None:
+    """Replace the chosen graphs by int8 ones; the step graphs' price is the export's seeded guided rollout run again
+    with the int8 graphs against PyTorch."""
+    from t2m.export.quantize import text_int8_report
+
+    def sizes(fp32: Path, quantized: Path) -> dict[str, Any]:
+        return {"fp32_bytes": fp32.stat().st_size, "int8_bytes": quantized.stat().st_size}
+
+    if "text" in int8:
+        checks.int8["text_encoder"] = quantize_in_place(
+            out_dir / "text_encoder.onnx",
+            lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
+    for key in ("temporal", "residual"):
+        if key in int8:
+            checks.int8[INT8_GRAPHS[key]] = quantize_in_place(out_dir / f"{INT8_GRAPHS[key]}.onnx", sizes)
+    for key in int8:
+        manifest["quantization"][INT8_GRAPHS[key]] = INT8_LABEL
+    if {"temporal", "residual"} & int8:
+        rollout = asdict(rollout_parity(model, out_dir / "temporal_step.onnx", out_dir / "residual_step.onnx",
+                                        guidance=guidance))
+        float32 = checks.parity.get("rollout", {}).get("steps")
+        checks.int8["rollout"] = {**rollout, "steps_identical": float32 is None or rollout["steps"] == float32}
+
+
 def export_hifigpt_from_runs(
     vq_run: str | Path, hifigpt_run: str | Path, out_dir: str | Path, *, name: str | None = None,
     version: str = "0.1.0", model_card: str | Path | None = None, data_summary: str | Path | None = None,
     default_guidance: float | None = None, check_parity: bool = True, text_source: TextSource | None = None,
+    int8: frozenset[str] = frozenset(),
 ) -> tuple[dict[str, Any], HiFiGPTExportChecks]:
     """A verified hifigpt bundle from a residual vq run and a hifigpt run. ``text_source`` replaces building the
     run's text encoder (tests)."""
@@ -188,4 +245,4 @@ def export_hifigpt_from_runs(
         out_dir, vq=vq, model=model, mean=mean, std=std, text_source=make_text_source(),
         name=name or f"t2m-{training_data['name']}-hifigpt-{kind}", version=version, training_data=training_data,
         license=training_data["license"], unconditional_branch=cond_drop > 0, default_guidance=guidance,
-        notes=notes, check_parity=check_parity)
+        notes=notes, check_parity=check_parity, int8=int8)

@@ -129,10 +129,32 @@ def test_t2m_export_family_hifigpt_from_runs(runs, tmp_path, tiny_text, capsys):
     assert "verified" in capsys.readouterr().out
 
 
+def test_int8_step_graphs_are_measured_and_declared(runs, tmp_path, tiny_text, capsys):
+    """--int8 temporal,residual: both step graphs quantised (smaller files, declared in the manifest), the decoder and
+    text graphs kept float32, and the rollout with the int8 graphs measured against PyTorch into the card."""
+    from t2m.cli.main import main
+
+    out = tmp_path / "bundle"
+    assert main(["export", "--family", "hifigpt", "--vq", str(runs["vq"]), "--hifigpt", str(runs["hifigpt"]),
+                 "--int8", "temporal,residual", "-o", str(out)]) == 0
+    manifest = verify_bundle(out)
+    assert manifest["quantization"] == {"text_encoder": None, "temporal_step": "int8-dynamic",
+                                        "residual_step": "int8-dynamic"}
+    report = json.loads(capsys.readouterr().out.split("\nbundle ")[0])["int8"]
+    for key in ("temporal_step", "residual_step"):
+        assert report[key]["int8_bytes"] < report[key]["fp32_bytes"]
+        assert report[key]["int8_bytes"] == manifest["files"][f"{key}.onnx"]["bytes"]
+    rollout = report["rollout"]
+    assert 0 < rollout["max_abs_logit_diff"] < 1.0, "int8 weights change the logits, a little"
+    card = (out / "MODEL_CARD.md").read_text()
+    assert "## int8 dynamic quantisation" in card and "temporal_step.onnx (" in card
+
+
 @pytest.mark.parametrize("args, message", [
     (["--family", "hifigpt"], "--family hifigpt needs --hifigpt RUN"),
     (["--hifigpt", "{run}"], "--hifigpt: only with --family hifigpt"),
-    (["--family", "hifigpt", "--hifigpt", "{run}", "--int8", "gpt"], "--int8 is not available for --family hifigpt"),
+    (["--family", "hifigpt", "--hifigpt", "{run}", "--int8", "gpt"],
+     "--int8 gpt: give none, all, or some of residual, temporal, text"),
     (["--family", "masked", "--masked", "{run}", "--hifigpt", "{run}"], "--hifigpt: only with --family hifigpt"),
 ])
 def test_wrong_export_arguments_are_one_line(runs, tmp_path, capsys, args, message):

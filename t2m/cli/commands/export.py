@@ -38,7 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--clip-weights", type=Path, default=None, metavar="PATH", help="local CLIP ViT-B/32 weights")
     parser.add_argument("--int8", default="none", metavar="GRAPHS",
                         help="int8 dynamic quantisation: none (default), all, or the graphs comma-separated; family "
-                             "gpt: text or gpt; family masked: text, masked, residual; family hifigpt: none")
+                             "gpt: text or gpt; family masked: text, masked, residual; family hifigpt: text, "
+                             "temporal, residual")
     parser.add_argument("--name", default=None, help="bundle name (default t2m-<data>-<text encoder>)")
     parser.add_argument("--version", default="0.1.0", help="bundle version (default 0.1.0)")
     parser.add_argument("--model-card", type=Path, default=None, metavar="FILE",
@@ -55,7 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 _RUNS = {"gpt": ("gpt",), "masked": ("masked", "residual", "length"), "hifigpt": ("hifigpt",)}
 # the graphs --int8 may name per family (none: no int8 export)
-_INT8: dict[str, set[str]] = {"gpt": {"text", "gpt"}, "masked": {"text", "masked", "residual"}, "hifigpt": set()}
+_INT8: dict[str, set[str]] = {"gpt": {"text", "gpt"}, "masked": {"text", "masked", "residual"},
+                              "hifigpt": {"text", "temporal", "residual"}}
 
 
 def _check_family_arguments(args: argparse.Namespace) -> None:
@@ -93,12 +95,11 @@ def _check_family_arguments(args: argparse.Namespace) -> None:
         raise CliError(f"--residual-guidance must be >= 0, got {args.residual_guidance}")
 
 
-def _masked_int8(value: str) -> frozenset[str]:
-    from t2m.export.masked_exporter import INT8_GRAPHS
-
+def _int8_graphs(value: str, family: str) -> frozenset[str]:
+    """--int8's graph names for a masked or hifigpt export ("all": every graph the family may quantise)."""
     if value == "none":
         return frozenset()
-    return frozenset(INT8_GRAPHS) if value == "all" else frozenset(value.split(","))
+    return frozenset(_INT8[family]) if value == "all" else frozenset(value.split(","))
 
 
 def _run_masked(args: argparse.Namespace) -> int:
@@ -109,7 +110,7 @@ def _run_masked(args: argparse.Namespace) -> int:
     manifest, checks = export_masked_from_runs(
         args.vq, args.masked, args.output, residual_run=args.residual, length_run=args.length, name=args.name,
         version=args.version, model_card=args.model_card, data_summary=args.data_summary, decoding=decoding,
-        check_parity=not args.skip_parity, int8=_masked_int8(args.int8))
+        check_parity=not args.skip_parity, int8=_int8_graphs(args.int8, "masked"))
     return _report(args, manifest, {"parity": checks.parity, "int8": checks.int8})
 
 
@@ -118,8 +119,9 @@ def _run_hifigpt(args: argparse.Namespace) -> int:
 
     manifest, checks = export_hifigpt_from_runs(
         args.vq, args.hifigpt, args.output, name=args.name, version=args.version, model_card=args.model_card,
-        data_summary=args.data_summary, default_guidance=args.guidance, check_parity=not args.skip_parity)
-    return _report(args, manifest, {"parity": checks.parity})
+        data_summary=args.data_summary, default_guidance=args.guidance, check_parity=not args.skip_parity,
+        int8=_int8_graphs(args.int8, "hifigpt"))
+    return _report(args, manifest, {"parity": checks.parity, "int8": checks.int8})
 
 
 def _report(args: argparse.Namespace, manifest: dict, checks: dict) -> int:
