@@ -201,12 +201,14 @@ def test_t2m_export_family_masked_from_runs(masked_runs, tmp_path, tiny_text, ca
     out = tmp_path / "bundle"
     code = main(["export", "--family", "masked", "--vq", str(masked_runs["joint_vq"]), "--masked",
                  str(masked_runs["masked"]), "--residual", str(masked_runs["residual"]), "--length",
-                 str(masked_runs["length"]), "--steps", "5", "--guidance", "2.5", "-o", str(out)])
+                 str(masked_runs["length"]), "--steps", "5", "--guidance", "2.5", "--top-k", "3",
+                 "--residual-top-k", "4", "-o", str(out)])
     assert code == 0
     manifest = verify_bundle(out)
     assert manifest["name"] == "t2m-tiny-masked-minilm" and manifest["license"] == "CC0"
     assert manifest["max_tokens"] == 20
     assert (manifest["masked"]["steps"], manifest["masked"]["guidance"]) == (5, 2.5)
+    assert (manifest["masked"]["top_k"], manifest["masked"]["residual_top_k"]) == (3, 4)
     assert manifest["masked"]["length_estimator"] and manifest["masked"]["unconditional_branch"]
     card = (out / "MODEL_CARD.md").read_text()
     assert "tokens identical True" in card and "- length run: `length` (step 3)" in card
@@ -239,6 +241,7 @@ def test_int8_text_encoder_for_the_masked_family(masked_runs, tmp_path, tiny_tex
     ([], "--gpt RUN is required"),
     (["--family", "masked", "--masked", "{masked}", "--gpt", "{masked}"], "--gpt: only with --family gpt"),
     (["--family", "masked", "--masked", "{masked}", "--steps", "0"], "--steps must be >= 1"),
+    (["--family", "masked", "--masked", "{masked}", "--residual-top-k", "0"], "--residual-top-k must be >= 1, got 0"),
     (["--family", "masked", "--masked", "{masked}", "--int8", "gpt"], "--int8 gpt: give none, all, or some of masked"),
     (["--int8", "masked"], "--int8 masked: give none, all, or some of gpt, text"),
 ])

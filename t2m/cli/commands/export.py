@@ -33,6 +33,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--steps", type=int, default=10, help="family masked: re-masking steps (default 10)")
     parser.add_argument("--residual-guidance", type=float, default=5.0,
                         help="family masked: the residual stage's guidance scale (default 5.0)")
+    parser.add_argument("--top-k", type=int, default=None, metavar="K",
+                        help="family masked: sample the mask stage from the K likeliest codes (MoMask's and MoGenTS's "
+                             "eval: 10%% of the codebook; default: all codes)")
+    parser.add_argument("--residual-top-k", type=int, default=None, metavar="K",
+                        help="family masked: the residual stage's top-k (default: all codes)")
     parser.add_argument("--text-encoder", choices=("minilm", "clip"), default=None,
                         help="text encoder (default: the one the GPT run was trained with)")
     parser.add_argument("--clip-weights", type=Path, default=None, metavar="PATH", help="local CLIP ViT-B/32 weights")
@@ -93,6 +98,9 @@ def _check_family_arguments(args: argparse.Namespace) -> None:
         raise CliError(f"--steps must be >= 1, got {args.steps}")
     if args.residual_guidance < 0:
         raise CliError(f"--residual-guidance must be >= 0, got {args.residual_guidance}")
+    for option, value in (("--top-k", args.top_k), ("--residual-top-k", args.residual_top_k)):
+        if value is not None and value < 1:
+            raise CliError(f"{option} must be >= 1, got {value}")
 
 
 def _int8_graphs(value: str, family: str) -> frozenset[str]:
@@ -106,7 +114,8 @@ def _run_masked(args: argparse.Namespace) -> int:
     from t2m.export.masked_exporter import MaskedDecoding, export_masked_from_runs
 
     decoding = MaskedDecoding(steps=args.steps, guidance=4.0 if args.guidance is None else args.guidance,
-                              residual_guidance=args.residual_guidance)
+                              residual_guidance=args.residual_guidance, top_k=args.top_k,
+                              residual_top_k=args.residual_top_k)
     manifest, checks = export_masked_from_runs(
         args.vq, args.masked, args.output, residual_run=args.residual, length_run=args.length, name=args.name,
         version=args.version, model_card=args.model_card, data_summary=args.data_summary, decoding=decoding,
