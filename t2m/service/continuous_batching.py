@@ -105,12 +105,13 @@ class ContinuousBatcher(QueuedWorkers):
             if joining is None:
                 return
             try:
+                live = []
                 for job in joining:
                     if job.request.cancelled:
                         self._finish(job, GenerationCancelled("request cancelled while queued"))
                         continue
                     running[id(job.request)] = job
-                live = [job.request for job in joining if not job.request.cancelled]
+                    live.append(job.request)
                 if live:
                     mid_run = session.joins_mid_run
                     for request, result in session.admit(live):

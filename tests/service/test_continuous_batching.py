@@ -28,6 +28,12 @@ def _stream(seed: int = 11) -> GenerationRequest:
                              seed=seed, guidance=2.0, temperature=0.8, top_k=10)
 
 
+def _short(seed: int = 21) -> GenerationRequest:
+    """Two fixed segments (10 + 5 tokens, stepped side by side): done 11 steps after it starts."""
+    return GenerationRequest(segments=[SegmentRequest("a person turns around", 2.0),
+                                       SegmentRequest("a person sits down", 1.0)], seed=seed, guidance=3.0)
+
+
 def _run_until_idle(session) -> list[tuple[GenerationRequest, Motion | BaseException]]:
     finished = []
     while not session.idle:
@@ -41,20 +47,23 @@ def _same_motion(got: Motion | BaseException, want: Motion) -> bool:
 
 
 def test_a_request_joining_mid_run_gets_the_motion_it_gets_alone(onnx_engine):
-    long, stream = _long(), _stream()
-    alone_long, alone_stream = onnx_engine.generate(_long()), onnx_engine.generate(_stream())
+    long, short, stream = _long(), _short(), _stream()
+    alone = {"long": onnx_engine.generate(_long()), "short": onnx_engine.generate(_short()),
+             "stream": onnx_engine.generate(_stream())}
     session = onnx_engine.continuous()
     assert session.admit([long]) == []
     for _ in range(5):
         assert session.advance() == []
-    assert session.admit([stream]) == []
-    # control: it joined a batch part-way through (two cohorts, the first at step 5), and it left before the long one
-    assert session.joins_mid_run == 1 and [r.cohort.position for r in session.running] == [5, 0]
+    assert session.admit([short, stream]) == []
+    # control: they joined a batch part-way through (two cohorts, the first at step 5) ...
+    assert session.joins_mid_run == 2 and [r.cohort.position for r in session.running] == [5, 0]
     finished = _run_until_idle(session)
-    assert [request for request, _ in finished] == [stream, long]
-    results = dict((id(request), result) for request, result in finished)
-    assert _same_motion(results[id(stream)], alone_stream)
-    assert _same_motion(results[id(long)], alone_long)
+    order = [request for request, _ in finished]
+    # ... and the short one left at once, while the long one was still running
+    assert order.index(short) < order.index(long)
+    results = {id(request): result for request, result in finished}
+    for name, request in (("long", long), ("short", short), ("stream", stream)):
+        assert _same_motion(results[id(request)], alone[name]), name
 
 
 def test_requests_starting_together_share_one_cohort_and_match_a_whole_batch(onnx_engine):
@@ -93,7 +102,7 @@ def test_a_failing_request_is_answered_at_admission(onnx_engine):
 def test_the_batcher_lets_a_request_join_a_running_batch(onnx_engine):
     """Through the service's worker thread: the second request is submitted from the worker itself after step 5 of
     the first, so it can only join mid-run; it must finish first and match its motion alone."""
-    alone_long, alone_stream = onnx_engine.generate(_long()), onnx_engine.generate(_stream())
+    alone_long, alone_short = onnx_engine.generate(_long()), onnx_engine.generate(_short())
     order: list[str] = []
     futures: dict[str, Future] = {}
     submitted = threading.Event()
@@ -101,19 +110,19 @@ def test_the_batcher_lets_a_request_join_a_running_batch(onnx_engine):
     def on_step(steps: int) -> None:
         if steps == 5 and not submitted.is_set():
             submitted.set()
-            futures["stream"] = batcher.submit_nowait(_stream())
-            futures["stream"].add_done_callback(lambda _: order.append("stream"))
+            futures["short"] = batcher.submit_nowait(_short())
+            futures["short"].add_done_callback(lambda _: order.append("short"))
 
     batcher = ContinuousBatcher(onnx_engine, window_s=0.0, on_step=on_step)
     try:
         futures["long"] = batcher.submit_nowait(_long())
         futures["long"].add_done_callback(lambda _: order.append("long"))
-        long = futures["long"].result(timeout=120)
-        stream = futures["stream"].result(timeout=120)
+        long = futures["long"].result(timeout=600)
+        short = futures["short"].result(timeout=600)
     finally:
         batcher.close()
-    assert order == ["stream", "long"] and batcher.joins_mid_run == 1 and batcher.in_flight == 0
-    assert _same_motion(stream, alone_stream) and _same_motion(long, alone_long)
+    assert order == ["short", "long"] and batcher.joins_mid_run == 1 and batcher.in_flight == 0
+    assert _same_motion(short, alone_short) and _same_motion(long, alone_long)
 
 
 def test_continuous_batching_is_a_setting_and_only_for_engines_that_can(onnx_engine):
