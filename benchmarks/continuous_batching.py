@@ -6,7 +6,7 @@ Two workloads, each run against both servers in every round (order before, after
   mixed    --long-clients send 10 s three-sentence requests back to back while --short-clients send 2 s one-sentence
            requests back to back: p50/p99 latency of the short ones (and of the long ones), throughput.
   sixteen  --clients (16) send 10 s one-sentence motions back to back: throughput and p50/p99.
-Latencies of all rounds are pooled per server and workload. The machine (CPU, cores, load average before and after)
+Both servers get a warm-up request first; latencies of all rounds are pooled per server and workload. The machine (CPU, cores, load average before and after)
 is printed with the tables, so a run on a shared machine says so. Loopback only; bounded like load_test.py.
 
     python benchmarks/continuous_batching.py --model t2m/bundles/default --seconds 30 --rounds 2
@@ -31,7 +31,7 @@ if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable
 from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, SENTENCES, PhaseResult
 from benchmarks.server_process import require_loopback, running_server
 
-__all__ = ["MODES", "WORKLOADS", "machine", "main", "run_workload"]
+__all__ = ["MODES", "WORKLOADS", "machine", "main", "run_workload", "warm_up"]
 
 MODES = {"before": "false", "after": "true"}          # label -> T2M_CONTINUOUS_BATCHING
 WORKLOADS = ("mixed", "sixteen")
@@ -93,6 +93,15 @@ async def run_workload(url: str, workload: str, seconds: float, *, clients: int,
         for result in results.values():
             result.seconds = time.monotonic() - started
     return results
+
+
+def warm_up(url: str) -> None:
+    """One request of each kind before timing: a fresh server's first graph calls are slower."""
+    require_loopback(url)
+    rng = random.Random(0)
+    with httpx.Client(timeout=600.0) as client:
+        for seconds, sentences in ((2.0, 1), (10.0, 3)):
+            client.post(f"{url}/generate", json=_body(rng, seconds, sentences)).raise_for_status()
 
 
 def machine() -> dict[str, str]:
@@ -172,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     with running_server(args.model, env={**env, "T2M_CONTINUOUS_BATCHING": MODES["before"]}, **start) as old, \
             running_server(args.model, env={**env, "T2M_CONTINUOUS_BATCHING": MODES["after"]}, **start) as new:
         servers = {"before": old.url, "after": new.url}
+        for url in servers.values():
+            warm_up(url)
         for round_index in range(args.rounds):
             order = list(MODES) if round_index % 2 == 0 else list(reversed(MODES))
             for workload in workloads:
