@@ -6,8 +6,9 @@ Two workloads, each run against both servers in every round (order before, after
   mixed    --long-clients send 10 s three-sentence requests back to back while --short-clients send 2 s one-sentence
            requests back to back: p50/p99 latency of the short ones (and of the long ones), throughput.
   sixteen  --clients (16) send 10 s one-sentence motions back to back: throughput and p50/p99.
-Both servers get a warm-up request first; latencies of all rounds are pooled per server and workload. The machine (CPU, cores, load average before and after)
-is printed with the tables, so a run on a shared machine says so. Loopback only; bounded like load_test.py.
+Both servers get a warm-up request first; latencies of all rounds are pooled per server and workload. The machine
+(CPU, cores, load average before and after) is printed with the tables, so a run on a shared machine says so.
+Loopback only; bounded like load_test.py.
 
     python benchmarks/continuous_batching.py --model t2m/bundles/default --seconds 30 --rounds 2
 """
