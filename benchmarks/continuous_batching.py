@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import json
 import os
 import platform
@@ -87,9 +88,8 @@ async def run_workload(url: str, workload: str, seconds: float, *, clients: int,
         tasks = []
         for k, (kind, (n, motion, sentences)) in enumerate(kinds.items()):
             for i in range(n):
-                rng = random.Random(seed * 10_000 + k * 1000 + i)
-                tasks.append(_client(client, url, lambda rng=rng, m=motion, s=sentences: _body(rng, m, s),
-                                     results[kind], deadline))
+                tasks.append(_client(client, url, functools.partial(
+                    _body, random.Random(seed * 10_000 + k * 1000 + i), motion, sentences), results[kind], deadline))
         await asyncio.gather(*tasks)
         for result in results.values():
             result.seconds = time.monotonic() - started
