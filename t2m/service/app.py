@@ -24,7 +24,8 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from t2m import __version__
-from t2m.service.batching import MicroBatcher
+from t2m.service.batching import QueuedWorkers
+from t2m.service.continuous_batching import batcher_for
 from t2m.service.dependencies import ServiceState
 from t2m.service.engine.types import Engine
 from t2m.service.formats import preload as preload_formats
@@ -71,9 +72,10 @@ def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engin
     log.info("%d model(s) ready in %.1f s", len(models), state.load_seconds)
 
 
-def _batcher_for(engine: Engine, settings: Settings) -> MicroBatcher:
-    return MicroBatcher(engine, max_queue=settings.max_queue, max_batch_rows=settings.max_batch_rows,
-                        window_s=settings.batch_window_ms / 1000.0, workers=settings.engine_workers)
+def _batcher_for(engine: Engine, settings: Settings) -> QueuedWorkers:
+    return batcher_for(engine, continuous=settings.continuous_batching, max_queue=settings.max_queue,
+                       max_batch_rows=settings.max_batch_rows, window_s=settings.batch_window_ms / 1000.0,
+                       workers=settings.engine_workers)
 
 
 def create_app(settings: Settings | None = None, *,

@@ -5,6 +5,9 @@ takes the oldest request, then for `window_s` lets others join while their GPT r
 batch's segments then step through the GPT graph together (engine.generate_batch), which costs little more than one
 request on a CPU because a step's cost is dominated by reading the weights. Each request keeps its own random
 generator, so batching never changes a request's motion.
+
+`QueuedWorkers` is the queue, the bound, the Futures and the threads; `MicroBatcher` runs each batch to its end;
+`t2m.service.continuous_batching.ContinuousBatcher` (the GPT family's default) lets requests join a running batch.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ from dataclasses import dataclass, field
 
 from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
 
-__all__ = ["GenerationTimeout", "MicroBatcher", "QueueFullError", "rows_of"]
+__all__ = ["GenerationTimeout", "MicroBatcher", "QueueFullError", "QueuedWorkers", "rows_of"]
 
 log = logging.getLogger(__name__)
 
@@ -43,8 +46,8 @@ class _Job:
     enqueued: float = field(default_factory=time.perf_counter)
 
 
-class MicroBatcher:
-    """Runs an engine's generations in worker threads, batching requests that arrive together."""
+class QueuedWorkers:
+    """A bounded queue of requests served by worker threads; subclasses say how a worker runs them (`_work`)."""
 
     def __init__(self, engine: Engine, *, max_queue: int = 16, max_batch_rows: int = 64, window_s: float = 0.005,
                  workers: int = 1) -> None:
@@ -62,6 +65,9 @@ class MicroBatcher:
                          for i in range(workers)]
         for thread in self._threads:
             thread.start()
+
+    def _work(self) -> None:
+        raise NotImplementedError
 
     @property
     def queue_depth(self) -> int:
@@ -110,6 +116,20 @@ class MicroBatcher:
         for thread in self._threads:
             thread.join(timeout_s)
 
+    def _resolve(self, job: _Job, result: object) -> None:
+        """Hand a finished job its Motion or its failure, once."""
+        if job.future.done():
+            return
+        if isinstance(result, BaseException):
+            job.future.set_exception(result)
+        else:
+            job.future.set_result(result)
+
+
+class MicroBatcher(QueuedWorkers):
+    """Runs an engine's generations in worker threads, batching requests that arrive together; a batch runs to its
+    end before the worker takes the next."""
+
     # ---------------------------------------------------------------------------------------- worker side
 
     def _take_batch(self) -> list[_Job] | None:
@@ -149,10 +169,7 @@ class MicroBatcher:
                     self.largest_batch = max(self.largest_batch, len(live))
                     results = self.engine.generate_batch([job.request for job in live])
                     for job, result in zip(live, results):
-                        if isinstance(result, BaseException):
-                            job.future.set_exception(result)
-                        else:
-                            job.future.set_result(result)
+                        self._resolve(job, result)
             except BaseException as error:  # an engine failure fails its batch, never the worker
                 log.exception("generation batch of %d failed", len(live))
                 for job in live:

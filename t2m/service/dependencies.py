@@ -9,7 +9,7 @@ from typing import Literal
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from t2m.service.batching import MicroBatcher
+from t2m.service.batching import QueuedWorkers
 from t2m.service.engine.types import Engine
 from t2m.service.metrics import ServiceMetrics
 from t2m.service.registry import ModelRegistry, ServedModel
@@ -36,7 +36,7 @@ class ServiceState:
         return self.models.default.engine if self.models is not None else None
 
     @property
-    def batcher(self) -> MicroBatcher | None:
+    def batcher(self) -> QueuedWorkers | None:
         """The default model's batcher (None until loaded)."""
         return self.models.default.batcher if self.models is not None else None
 

@@ -1,6 +1,6 @@
 """The models one service serves, each found by its manifest name, the first bundle being the default.
 
-Every model has its own engine and its own MicroBatcher (queue and worker threads), so requests for different models
+Every model has its own engine and its own batcher (queue and worker threads), so requests for different models
 never share a batch: a busy model neither delays another model's requests nor changes their motions.
 """
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from t2m.service.batching import MicroBatcher
+from t2m.service.batching import QueuedWorkers
 from t2m.service.engine.types import Engine, ModelLimits
 
 __all__ = ["DuplicateModelError", "LoadedEngine", "ModelLoadError", "ModelRegistry", "ServedModel", "load_engines"]
@@ -39,7 +39,7 @@ class ServedModel:
 
     directory: Path
     engine: Engine
-    batcher: MicroBatcher
+    batcher: QueuedWorkers
     load_seconds: float
 
     @property

@@ -41,7 +41,14 @@ class Settings(BaseSettings):
     engine_workers: int = Field(1, ge=1, le=16, description="Worker threads that run batches of generations.")
     max_queue: int = Field(16, ge=1, description="Requests allowed to wait for a worker; one more gets 429.")
     max_batch_rows: int = Field(64, ge=1, description="GPT rows (segments x cond/uncond) merged into one batch.")
-    batch_window_ms: float = Field(5.0, ge=0, description="How long a batch waits for more requests to join it.")
+    batch_window_ms: float = Field(5.0, ge=0, description="How long a batch waits for more requests to join it (with "
+                                                          "continuous batching: how long a request waits before "
+                                                          "joining a running batch, so that simultaneous ones start "
+                                                          "together).")
+    continuous_batching: bool = Field(
+        True, description="GPT-family models: a request joins the running batch at the next step boundary and is "
+                          "answered as soon as its own codes are done (false: each batch runs to its end first). "
+                          "The masked and T2M-HiFiGPT families always run batches to their end.")
     request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")
     max_body_bytes: int = Field(64 * 1024, ge=1024, description="Larger request bodies answer 413.")
     api_key: SecretStr | None = Field(None, description="If set, POST /generate needs 'Authorization: Bearer <key>'.")

@@ -14,7 +14,7 @@ from concurrent.futures import Future
 
 import numpy as np
 
-from t2m.service.batching import GenerationTimeout, MicroBatcher
+from t2m.service.batching import GenerationTimeout, QueuedWorkers
 from t2m.service.engine.types import GenerationRequest, Motion
 
 __all__ = ["MotionStream"]
@@ -27,7 +27,7 @@ class _End:
 class MotionStream:
     """Queues `request` on `batcher` (QueueFullError propagates) and yields its frame chunks, then its Motion."""
 
-    def __init__(self, batcher: MicroBatcher, request: GenerationRequest, timeout_s: float) -> None:
+    def __init__(self, batcher: QueuedWorkers, request: GenerationRequest, timeout_s: float) -> None:
         self._loop = asyncio.get_running_loop()
         self._items: asyncio.Queue[np.ndarray | _End] = asyncio.Queue()
         self._timeout_s = timeout_s

@@ -22,6 +22,7 @@ from t2m.decoding.masked import MaskedJob
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
+from t2m.service.engine.continuous import ContinuousGpt, PreparedJobs
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.gpt_codes import GptCodes
 from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
@@ -153,38 +154,54 @@ class OnnxEngine:
     def generate_batch(self, requests: Sequence[GenerationRequest],
                        on_step: Callable[[int], None] | None = None) -> list[Motion | BaseException]:
         """Generate all requests with their GPT steps batched together; a request's failure lands in its slot."""
-        results: list[Motion | BaseException | None] = [None] * len(requests)
-        jobs: list = []
-        owners: list[int] = []
-        notes: list[list[str]] = []
+        prepared = self.prepare(requests)
+        results: list[Motion | BaseException | None] = list(prepared.failures)
+        if prepared.jobs:
+            codes = self.codes.sample(prepared.jobs, self.limits.max_tokens, on_step)
+            for index, segment_codes, warnings in zip(prepared.owners, codes, prepared.notes):
+                results[index] = self.finish(requests[index], segment_codes, warnings)
+        return results  # type: ignore[return-value]
+
+    def prepare(self, requests: Sequence[GenerationRequest]) -> PreparedJobs:
+        """Each request's sampling job (texts encoded, limits checked, streaming attached), or its failure."""
+        prepared = PreparedJobs(failures=[None] * len(requests))
         for index, request in enumerate(requests):
             if request.cancelled:
-                results[index] = GenerationCancelled("request cancelled before it started")
+                prepared.failures[index] = GenerationCancelled("request cancelled before it started")
                 continue
             try:
                 job = self.codes.job(request, self.text, self.limits)
-                notes.append(self.unknown_text_warnings([s.text for s in request.segments], job.conds))
+                warnings = self.unknown_text_warnings([s.text for s in request.segments], job.conds)
                 self._stream_early(job, request)
-                jobs.append(job)
-                owners.append(index)
             except RequestLimitError as error:
-                results[index] = error
+                prepared.failures[index] = error
+                continue
             except Exception as error:  # one bad request must not sink the batch
                 log.exception("text encoding failed")
-                results[index] = error
-        if jobs:
-            codes = self.codes.sample(jobs, self.limits.max_tokens, on_step)
-            for index, segment_codes, warnings in zip(owners, codes, notes):
-                request = requests[index]
-                if segment_codes is None:
-                    results[index] = GenerationCancelled("request cancelled during generation")
-                    continue
-                try:
-                    results[index] = self._motion(request, segment_codes, warnings)
-                except Exception as error:
-                    log.exception("decoding failed")
-                    results[index] = error
-        return results  # type: ignore[return-value]
+                prepared.failures[index] = error
+                continue
+            prepared.jobs.append(job)
+            prepared.owners.append(index)
+            prepared.notes.append(warnings)
+        return prepared
+
+    def finish(self, request: GenerationRequest, segment_codes: list[np.ndarray] | None,
+               warnings: list[str]) -> Motion | BaseException:
+        """A request's codes (None: cancelled on the way) decoded once into its Motion, or the failure."""
+        if segment_codes is None:
+            return GenerationCancelled("request cancelled during generation")
+        try:
+            return self._motion(request, segment_codes, warnings)
+        except Exception as error:
+            log.exception("decoding failed")
+            return error
+
+    def continuous(self) -> ContinuousGpt | None:
+        """A continuous-batching session (requests join and leave at step boundaries), or None for the families
+        that keep run-to-completion micro-batching (masked: not autoregressive; T2M-HiFiGPT: not done yet)."""
+        if not isinstance(self.codes, GptCodes):
+            return None
+        return ContinuousGpt(self, self.codes)
 
     @property
     def step(self) -> OnnxGptStep:

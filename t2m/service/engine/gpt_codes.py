@@ -6,7 +6,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from t2m.decoding.gpt import SamplingJob, sample_codes
+from t2m.decoding.gpt import GptCohort, SamplingJob, sample_codes
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.text import TextEncoder
@@ -49,3 +49,7 @@ class GptCodes:
     def sample(self, jobs: Sequence[SamplingJob], max_tokens: int,
                on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
         return sample_codes(self.step, jobs, max_tokens, self.end_id, on_step)
+
+    def cohort(self, jobs: Sequence[SamplingJob], max_tokens: int) -> GptCohort:
+        """Jobs that start stepping together now (continuous batching: t2m.service.engine.continuous)."""
+        return GptCohort(self.step, jobs, max_tokens, self.end_id)

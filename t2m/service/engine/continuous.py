@@ -1,0 +1,98 @@
+"""Continuous batching of the GPT family: requests join the running work at a step boundary and leave when done.
+
+gpt_step.onnx takes one `position` for all its rows and a key/value past of one length with no attention mask, so
+rows at different positions cannot share a call without changing their logits. What the graph allows exactly: the
+requests admitted at one boundary form a cohort (t2m.decoding.gpt.GptCohort) whose rows step together; cohorts of
+different ages run side by side, one call each per step boundary, oldest first. A request is decoded and returned the
+step its last segment finishes, whatever is still running beside it. Its codes come from its own seeded generator
+and its own rows' logits, so they are the same alone, in a run-to-completion batch, or joined mid-run.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from t2m.decoding.gpt import GptCohort, SamplingJob
+from t2m.service.engine.gpt_codes import GptCodes
+from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion
+
+__all__ = ["ContinuousGpt", "Finished", "PreparedJobs"]
+
+Finished = list[tuple[GenerationRequest, Motion | BaseException]]
+"""Requests whose answer is ready, each with its Motion or the failure to raise in its place."""
+
+
+@dataclass
+class PreparedJobs:
+    """Requests turned into sampling jobs: `jobs[i]` belongs to request `owners[i]` (with its warnings `notes[i]`);
+    a request that failed before sampling has its error in `failures[index]`."""
+
+    failures: list[BaseException | None]
+    jobs: list = field(default_factory=list)
+    owners: list[int] = field(default_factory=list)
+    notes: list[list[str]] = field(default_factory=list)
+
+
+class _Engine(Protocol):
+    """What a continuous session needs from its engine (OnnxEngine)."""
+
+    limits: ModelLimits
+
+    def prepare(self, requests: Sequence[GenerationRequest]) -> PreparedJobs: ...
+
+    def finish(self, request: GenerationRequest, segment_codes: list[np.ndarray] | None,
+               warnings: list[str]) -> Motion | BaseException: ...
+
+
+@dataclass
+class _Running:
+    cohort: GptCohort
+    requests: list[GenerationRequest]
+    notes: list[list[str]]
+
+
+class ContinuousGpt:
+    """One worker's running GPT work: `admit` requests at a step boundary, `advance` every cohort by one step."""
+
+    def __init__(self, engine: _Engine, codes: GptCodes) -> None:
+        self.engine, self.codes = engine, codes
+        self.running: list[_Running] = []
+        self.steps = 0          # step boundaries passed (advance calls)
+        self.joins_mid_run = 0  # requests admitted while another cohort was part-way through
+
+    @property
+    def rows(self) -> int:
+        """GPT rows stepping now, over all cohorts (what the batcher's row budget counts)."""
+        return sum(running.cohort.rows for running in self.running)
+
+    @property
+    def idle(self) -> bool:
+        return not self.running
+
+    def admit(self, requests: Sequence[GenerationRequest]) -> Finished:
+        """Start `requests` as a new cohort at the next step; those failing before sampling are returned at once."""
+        prepared = self.engine.prepare(requests)
+        failed: Finished = [(request, error) for request, error in zip(requests, prepared.failures)
+                            if error is not None]
+        if prepared.jobs:
+            jobs: list[SamplingJob] = prepared.jobs
+            mid_run = any(running.cohort.position > 0 for running in self.running)
+            self.joins_mid_run += len(jobs) if mid_run else 0
+            self.running.append(_Running(self.codes.cohort(jobs, self.engine.limits.max_tokens),
+                                         [requests[i] for i in prepared.owners], prepared.notes))
+        return failed
+
+    def advance(self, on_step: Callable[[int], None] | None = None) -> Finished:
+        """One step of every cohort (one graph call each); the requests that finished in it, decoded."""
+        done: Finished = []
+        for running in self.running:
+            running.cohort.advance(on_step)
+            for index, codes in running.cohort.finished():
+                request = running.requests[index]
+                done.append((request, self.engine.finish(request, codes, running.notes[index])))
+        self.running = [running for running in self.running if not running.cohort.done]
+        self.steps += 1
+        return done

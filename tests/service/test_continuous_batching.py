@@ -1,0 +1,138 @@
+"""Continuous batching on the tiny random GPT bundle: a request that joins a running batch mid-run, or leaves it
+early, gets exactly the motion it gets alone (same seed, same codes, same frames); joins and early leaves are
+checked to have happened, by step counts, never by timing."""
+from __future__ import annotations
+
+import threading
+from concurrent.futures import Future
+
+import numpy as np
+import pytest
+
+from t2m.service.batching import MicroBatcher
+from t2m.service.continuous_batching import ContinuousBatcher, batcher_for
+from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, SegmentRequest
+from tests.service.fakes import FakeEngine
+
+
+def _long(seed: int = 3) -> GenerationRequest:
+    """50 tokens with the guidance pair: 51 steps."""
+    return GenerationRequest(segments=[SegmentRequest("a person walks forward", 10.0)], seed=seed, guidance=3.0)
+
+
+def _stream(seed: int = 11) -> GenerationRequest:
+    """A three-sentence T2LM stream (a fixed, a free and a short segment), sampling options of its own."""
+    return GenerationRequest(segments=[SegmentRequest("a person waves with the right hand", 2.0),
+                                       SegmentRequest("a person bows", None),
+                                       SegmentRequest("a person jumps", 0.5)],
+                             seed=seed, guidance=2.0, temperature=0.8, top_k=10)
+
+
+def _short(seed: int = 21) -> GenerationRequest:
+    """Two fixed segments (10 + 5 tokens, stepped side by side): done 11 steps after it starts."""
+    return GenerationRequest(segments=[SegmentRequest("a person turns around", 2.0),
+                                       SegmentRequest("a person sits down", 1.0)], seed=seed, guidance=3.0)
+
+
+def _run_until_idle(session) -> list[tuple[GenerationRequest, Motion | BaseException]]:
+    finished = []
+    while not session.idle:
+        finished += session.advance()
+    return finished
+
+
+def _same_motion(got: Motion | BaseException, want: Motion) -> bool:
+    return (isinstance(got, Motion) and got.segments == want.segments and got.tokens == want.tokens
+            and np.array_equal(got.joints, want.joints))
+
+
+def test_a_request_joining_mid_run_gets_the_motion_it_gets_alone(onnx_engine):
+    long, short, stream = _long(), _short(), _stream()
+    alone = {"long": onnx_engine.generate(_long()), "short": onnx_engine.generate(_short()),
+             "stream": onnx_engine.generate(_stream())}
+    session = onnx_engine.continuous()
+    assert session.admit([long]) == []
+    for _ in range(5):
+        assert session.advance() == []
+    assert session.admit([short, stream]) == []
+    # control: they joined a batch part-way through (two cohorts, the first at step 5) ...
+    assert session.joins_mid_run == 2 and [r.cohort.position for r in session.running] == [5, 0]
+    finished = _run_until_idle(session)
+    order = [request for request, _ in finished]
+    # ... and the short one left at once, while the long one was still running
+    assert order.index(short) < order.index(long)
+    results = {id(request): result for request, result in finished}
+    for name, request in (("long", long), ("short", short), ("stream", stream)):
+        assert _same_motion(results[id(request)], alone[name]), name
+
+
+def test_requests_starting_together_share_one_cohort_and_match_a_whole_batch(onnx_engine):
+    batch = onnx_engine.generate_batch([_long(), _stream(), _stream(seed=12)])
+    session = onnx_engine.continuous()
+    requests = [_long(), _stream(), _stream(seed=12)]
+    session.admit(requests)
+    assert len(session.running) == 1 and session.joins_mid_run == 0
+    results = {id(request): result for request, result in _run_until_idle(session)}
+    for request, want in zip(requests, batch):
+        assert isinstance(want, Motion) and _same_motion(results[id(request)], want)
+
+
+def test_a_cancelled_request_leaves_without_changing_the_others(onnx_engine):
+    alone = onnx_engine.generate(_stream())
+    session = onnx_engine.continuous()
+    long, stream = _long(), _stream()
+    session.admit([long])
+    session.advance()
+    session.admit([stream])
+    session.advance()
+    long.cancel()
+    finished = _run_until_idle(session)
+    results = {id(request): result for request, result in finished}
+    assert isinstance(results[id(long)], GenerationCancelled)
+    assert _same_motion(results[id(stream)], alone)
+
+
+def test_a_failing_request_is_answered_at_admission(onnx_engine):
+    session = onnx_engine.continuous()
+    bad = GenerationRequest(segments=[SegmentRequest("a person walks", 10.0)], seed=1, top_k=10_000)
+    ((request, error),) = session.admit([bad])
+    assert request is bad and "top_k" in str(error) and session.idle
+
+
+def test_the_batcher_lets_a_request_join_a_running_batch(onnx_engine):
+    """Through the service's worker thread: the second request is submitted from the worker itself after step 5 of
+    the first, so it can only join mid-run; it must finish first and match its motion alone."""
+    alone_long, alone_short = onnx_engine.generate(_long()), onnx_engine.generate(_short())
+    order: list[str] = []
+    futures: dict[str, Future] = {}
+    submitted = threading.Event()
+
+    def on_step(steps: int) -> None:
+        if steps == 5 and not submitted.is_set():
+            submitted.set()
+            futures["short"] = batcher.submit_nowait(_short())
+            futures["short"].add_done_callback(lambda _: order.append("short"))
+
+    batcher = ContinuousBatcher(onnx_engine, window_s=0.0, on_step=on_step)
+    try:
+        futures["long"] = batcher.submit_nowait(_long())
+        futures["long"].add_done_callback(lambda _: order.append("long"))
+        long = futures["long"].result(timeout=600)
+        short = futures["short"].result(timeout=600)
+    finally:
+        batcher.close()
+    assert order == ["short", "long"] and batcher.joins_mid_run == 1 and batcher.in_flight == 0
+    assert _same_motion(short, alone_short) and _same_motion(long, alone_long)
+
+
+def test_continuous_batching_is_a_setting_and_only_for_engines_that_can(onnx_engine):
+    options = {"max_queue": 4, "max_batch_rows": 64, "window_s": 0.0, "workers": 1}
+    made = [batcher_for(onnx_engine, continuous=True, **options), batcher_for(onnx_engine, continuous=False, **options),
+            batcher_for(FakeEngine(), continuous=True, **options)]
+    try:
+        assert [type(b) for b in made] == [ContinuousBatcher, MicroBatcher, MicroBatcher]
+    finally:
+        for batcher in made:
+            batcher.close()
+    with pytest.raises(TypeError):
+        ContinuousBatcher(FakeEngine())
