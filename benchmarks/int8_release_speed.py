@@ -14,7 +14,9 @@ depends on sizes, not values. Step graphs timed (all the imported graph, quantis
 
 Each step graph runs the service's own loop shape: `position` 0..tokens-1 with the KV cache, greedy choice; the
 reference recomputes the whole prefix with MotionGPT.forward every token (T2M-GPT's sample loop, as `t2m bench`).
-Figures are printed, never asserted.
+Each figure is given as wall time and as this process's CPU time per token: on a machine shared with other work the
+wall time measures the scheduler's share too, while one thread's CPU time stays close to what the step costs (with
+2 threads, CPU time adds both threads' time and is not a latency). Figures are printed, never asserted.
 
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/int8_release_speed.py [--workdir DIR] [--threads 1 2]
         [--tokens 50] [--repeats 3] [--variants float32,int8-7bit,...] [--no-eager]
@@ -100,16 +102,19 @@ class Row:
     threads: int
     guided: bool
     ms_per_token: float
+    cpu_ms_per_token: float
     megabytes: float
 
 
-def median_ms(fn: Callable[[], object], repeats: int) -> float:
-    times = []
+def median_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
+    """Median wall ms and median process CPU ms of `repeats` calls."""
+    walls, cpus = [], []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - start)
-    return 1000 * statistics.median(times)
+        walls.append(time.perf_counter() - start)
+        cpus.append(time.process_time() - cpu)
+    return 1000 * statistics.median(walls), 1000 * statistics.median(cpus)
 
 
 def conditions(manifest: dict, guided: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -121,7 +126,8 @@ def conditions(manifest: dict, guided: bool) -> tuple[np.ndarray, np.ndarray]:
     return cond, np.zeros(len(cond), np.int64)
 
 
-def ort_ms_per_token(path: Path, manifest: dict, guided: bool, tokens: int, repeats: int, threads: int) -> float:
+def ort_ms_per_token(path: Path, manifest: dict, guided: bool, tokens: int, repeats: int,
+                     threads: int) -> tuple[float, float]:
     from t2m.export.graph_export import ort_session
 
     session = ort_session(path, threads=threads)
@@ -142,10 +148,12 @@ def ort_ms_per_token(path: Path, manifest: dict, guided: bool, tokens: int, repe
             token = np.full(len(cond), int(scores[:size].argmax()), np.int64)
 
     generate()  # warm-up: pre-packing, allocations
-    return median_ms(generate, repeats) / tokens
+    wall, cpu = median_ms(generate, repeats)
+    return wall / tokens, cpu / tokens
 
 
-def eager_ms_per_token(release: Path, manifest: dict, guided: bool, tokens: int, threads: int) -> float:
+def eager_ms_per_token(release: Path, manifest: dict, guided: bool, tokens: int,
+                       threads: int) -> tuple[float, float]:
     """MotionGPT.forward on the whole prefix at every token (one timed run after a short warm-up)."""
     from t2m.export.t2m_gpt_import import load_release
 
@@ -165,7 +173,8 @@ def eager_ms_per_token(release: Path, manifest: dict, guided: bool, tokens: int,
             prefix = torch.cat([prefix, scores[:size].argmax().repeat(len(cond), 1)], dim=1)
 
     generate(2)
-    return median_ms(lambda: generate(tokens), 1) / tokens
+    wall, cpu = median_ms(lambda: generate(tokens), 1)
+    return wall / tokens, cpu / tokens
 
 
 def release_folder(workdir: Path) -> Path:
@@ -203,13 +212,15 @@ def main(argv: list[str] | None = None) -> int:
     for threads in args.threads:
         for guided in (False, True):
             for variant, path in graphs.items():
-                ms = ort_ms_per_token(path, manifest, guided, args.tokens, args.repeats, threads)
-                rows.append(Row(variant, threads, guided, ms, path.stat().st_size / 1e6))
-                print(f"  {variant} threads={threads} guided={guided}: {ms:.2f} ms/token", flush=True)
+                wall, cpu = ort_ms_per_token(path, manifest, guided, args.tokens, args.repeats, threads)
+                rows.append(Row(variant, threads, guided, wall, cpu, path.stat().st_size / 1e6))
+                print(f"  {variant} threads={threads} guided={guided}: {wall:.2f} ms/token wall, {cpu:.2f} CPU",
+                      flush=True)
             if not args.no_eager:
-                ms = eager_ms_per_token(release_folder(args.workdir), manifest, guided, args.tokens, threads)
-                rows.append(Row("eager", threads, guided, ms, float("nan")))
-                print(f"  eager threads={threads} guided={guided}: {ms:.2f} ms/token", flush=True)
+                wall, cpu = eager_ms_per_token(release_folder(args.workdir), manifest, guided, args.tokens, threads)
+                rows.append(Row("eager", threads, guided, wall, cpu, float("nan")))
+                print(f"  eager threads={threads} guided={guided}: {wall:.2f} ms/token wall, {cpu:.2f} CPU",
+                      flush=True)
     print()
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
     print()
@@ -218,17 +229,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def print_table(rows: list[Row], tokens: int) -> None:
-    """Markdown: one line per method, ms per token for each (threads, guidance) column."""
+    """Markdown: one line per method, wall ms per token (and CPU ms) for each (threads, guidance) column."""
     columns = sorted({(r.threads, r.guided) for r in rows})
     head = [f"{t} thread{'s' if t > 1 else ''}, {'guided (2 rows)' if g else 'no guidance (1 row)'}" for t, g in columns]
-    print(f"ms per token, batch 1, {tokens} tokens (median of the timed runs)")
+    print(f"ms per token, batch 1, {tokens} tokens (median of the timed runs): wall (CPU of this process)")
     print()
     print("| method | graph MB | " + " | ".join(head) + " |")
     print("| --- | ---: | " + " | ".join("---:" for _ in columns) + " |")
     for method in dict.fromkeys(r.method for r in rows):
         mine = {(r.threads, r.guided): r for r in rows if r.method == method}
         size = next(iter(mine.values())).megabytes
-        cells = [f"{mine[c].ms_per_token:.2f}" if c in mine else "-" for c in columns]
+        cells = [f"{mine[c].ms_per_token:.2f} ({mine[c].cpu_ms_per_token:.2f})" if c in mine else "-"
+                 for c in columns]
         print(f"| {LABELS[method]} | {'-' if size != size else f'{size:.0f}'} | " + " | ".join(cells) + " |")
 
 
