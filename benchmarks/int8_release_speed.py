@@ -202,7 +202,12 @@ def main(argv: list[str] | None = None) -> int:
     manifest = json.loads((bundle / "manifest.json").read_text())
     if args.tokens > manifest["max_tokens"]:
         parser.error(f"--tokens must be <= {manifest['max_tokens']}")
-    graphs = {v: variant_graph(bundle, v) for v in variants}
+    graphs = {}
+    for variant in variants:
+        try:
+            graphs[variant] = variant_graph(bundle, variant)
+        except Exception as error:  # e.g. an onnxruntime without MatMulNBits for these bits: say so, time the rest
+            print(f"- {variant}: not timed ({type(error).__name__}: {str(error).splitlines()[0][:200]})", flush=True)
     print()
     for line in describe_machine(max(args.threads), f"torch {torch.__version__}"):
         print(line)
