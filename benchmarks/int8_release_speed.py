@@ -185,7 +185,8 @@ def release_folder(workdir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--workdir", type=Path, default=REPO / "tmp" / "int8-release",
-                        help="keeps the release, the imported bundle and the quantised graphs (default tmp/int8-release)")
+                        help="keeps the release, the imported bundle and the quantised graphs "
+                             "(default tmp/int8-release)")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="onnxruntime / torch threads")
     parser.add_argument("--tokens", type=int, default=50, help="tokens per run (default 50 = a 10 s motion)")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per step graph (median; default 3)")
@@ -236,7 +237,8 @@ def main(argv: list[str] | None = None) -> int:
 def print_table(rows: list[Row], tokens: int) -> None:
     """Markdown: one line per method, wall ms per token (and CPU ms) for each (threads, guidance) column."""
     columns = sorted({(r.threads, r.guided) for r in rows})
-    head = [f"{t} thread{'s' if t > 1 else ''}, {'guided (2 rows)' if g else 'no guidance (1 row)'}" for t, g in columns]
+    head = [f"{t} thread{'s' if t > 1 else ''}, {'guided (2 rows)' if g else 'no guidance (1 row)'}"
+            for t, g in columns]
     print(f"ms per token, batch 1, {tokens} tokens (median of the timed runs): wall (CPU of this process)")
     print()
     print("| method | graph MB | " + " | ".join(head) + " |")

@@ -17,8 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "
                     "GPT family: --vq VQ_RUN --gpt RUN. Masked family: --vq JOINT_VQ_RUN --masked RUN --residual RUN "
                     "[--length RUN], decoded by the service's loop (t2m.decoding.masked). T2M-HiFiGPT: --vq "
-                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt). A served GPT bundle: --bundle DIR (its text, "
-                    "step and decoder graphs in onnxruntime through the service's loop; no VQ-reconstruction row).")
+                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt). A served GPT bundle: --bundle DIR (its "
+                    "text, step and decoder graphs in onnxruntime through the service's loop; no VQ-reconstruction "
+                    "row).")
     parser.add_argument("--data", required=True, help="dataset directory in HumanML3D layout")
     parser.add_argument("--evaluator", required=True, help="evaluator run directory (t2m train evaluator)")
     parser.add_argument("--vq", default=None, help="VQ-VAE run directory (the joint VQ for the masked family)")
