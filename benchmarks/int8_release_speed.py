@@ -36,10 +36,9 @@ import numpy as np
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
-sys.path.insert(0, str(REPO / "tests" / "export"))   # the release writers are test helpers
+sys.path.insert(0, str(REPO))   # run as a script: the repository's packages (and its release writers)
 
-from released_models_speed import import_t2m_gpt_release, write_clip  # type: ignore[import-not-found]  # noqa: E402
+from benchmarks.released_models_speed import import_t2m_gpt_release, write_clip  # noqa: E402
 
 from t2m.export.machine import describe_machine  # noqa: E402
 
