@@ -39,7 +39,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))   # run as a script: the repository's packages (and its release writers)
 
 from benchmarks.released_models_speed import import_t2m_gpt_release, write_clip  # noqa: E402
-
 from t2m.export.machine import describe_machine  # noqa: E402
 
 VARIANTS = ["float32", "int8-7bit", "int8-8bit", "wo-int8", "wo-int4"]
