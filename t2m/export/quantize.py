@@ -61,6 +61,7 @@ class GptInt8Report:
     int8_ms_per_step: float
     fp32_bytes: int
     int8_bytes: int
+    agree_steps: int = 0            # greedy steps before the first code that differs (= steps when all match)
 
 
 @dataclass
@@ -101,7 +102,7 @@ def gpt_int8_report(fp32_path: str | Path, int8_path: str | Path, manifest: dict
     return GptInt8Report(
         max_abs_logit_diff=max(diffs), greedy_codes_match=bool(np.array_equal(codes32, codes8)), steps=steps,
         fp32_ms_per_step=1000 * t32 / steps, int8_ms_per_step=1000 * t8 / steps,
-        fp32_bytes=Path(fp32_path).stat().st_size, int8_bytes=Path(int8_path).stat().st_size,
+        fp32_bytes=Path(fp32_path).stat().st_size, int8_bytes=Path(int8_path).stat().st_size, agree_steps=agree,
     )
 
 

@@ -6,12 +6,15 @@ import json
 
 import numpy as np
 import onnx
+import pytest
 import torch
 
 from t2m.export.graph_export import ort_session
+from t2m.export.int8_bundle import quantize_bundle_gpt
 from t2m.export.onnx_gpt import export_gpt_step
 from t2m.export.parity import ort_greedy_rollout
-from t2m.export.quantize import gpt_int8_report, quantize_graph, text_int8_report
+from t2m.export.quantize import GptInt8Report, gpt_int8_report, quantize_graph, text_int8_report
+from t2m.export.random_bundle import build_random_bundle
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from tests.export.non_vnni import ReferenceSession
 
@@ -34,6 +37,59 @@ def test_gpt_step_int8_is_smaller_and_close_to_float32(tmp_path):
     assert 0 < report.max_abs_logit_diff < 0.05  # the logits of this model span about +-0.5
     same = gpt_int8_report(fp32, fp32, manifest, steps=20)  # the comparison itself: zero against itself
     assert same.max_abs_logit_diff == 0 and same.greedy_codes_match
+
+
+def _parity_holds(report: GptInt8Report) -> bool:
+    """What shipping an int8 step graph asks of it on a greedy rollout: the same codes, logits close."""
+    return report.greedy_codes_match and report.max_abs_logit_diff < 0.05
+
+
+def _double_one_layers_weights(src, dst) -> str:
+    """A wrongly quantised graph: one MatMulInteger's int8 weights doubled (8-bit values read with the 7-bit scale,
+    the kind of slip a changed quantiser makes); returns the weight's name."""
+    model = onnx.load(str(src))
+    weights = {init.name: init for init in model.graph.initializer}
+    name = next(node.input[1] for node in model.graph.node if node.op_type == "MatMulInteger")
+    doubled = onnx.numpy_helper.to_array(weights[name]).astype(np.int16) * 2
+    weights[name].CopyFrom(onnx.numpy_helper.from_array(doubled.clip(-128, 127).astype(np.int8), name))
+    onnx.save(model, str(dst))
+    return name
+
+
+def test_int8_parity_passes_the_quantised_graph_and_fails_a_wrong_one(tmp_path):
+    """The parity check that ships int8 step graphs holds for quantize_graph's output and fails for the same graph
+    with one layer wrongly quantised (the control: the check can fail)."""
+    torch.manual_seed(1)
+    gpt = MotionGPT(GPTConfig(codebook_size=64, embed=64, n_head=4, n_layer_base=2, n_layer_head=2, text_dim=32)).eval()
+    fp32 = export_gpt_step(gpt, tmp_path / "gpt_step.onnx")
+    int8 = quantize_graph(fp32, tmp_path / "gpt_step.int8.onnx")
+    c = gpt.config
+    manifest = {"gpt": {"n_layer": c.n_layer, "n_head": c.n_head, "head_dim": c.head_dim, "default_guidance": 3.0},
+                "max_tokens": c.max_tokens, "end_id": c.end_id, "text_encoder": {"dim": c.text_dim, "normalize": True}}
+    assert _parity_holds(gpt_int8_report(fp32, int8, manifest, steps=20))
+    _double_one_layers_weights(int8, tmp_path / "wrong.onnx")
+    wrong = gpt_int8_report(fp32, tmp_path / "wrong.onnx", manifest, steps=20)
+    assert not _parity_holds(wrong), wrong
+
+
+def test_int8_bundle_copy_is_verified_and_served_like_its_float32_original(tmp_path):
+    from t2m.service.engine.engine import OnnxEngine
+    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+    src = build_random_bundle(tmp_path / "fp32", codebook_size=16, embed=32, n_head=2, n_layer=2)
+    manifest = quantize_bundle_gpt(src, tmp_path / "int8", version="0.0.1")
+    assert manifest["quantization"]["gpt_step"] == "int8-dynamic" and manifest["version"] == "0.0.1"
+    assert "MatMulInteger" in _op_types(tmp_path / "int8" / "gpt_step.onnx")
+    original = json.loads((src / "manifest.json").read_text())
+    changed = {name for name in original["files"] if original["files"][name] != manifest["files"][name]}
+    assert changed == {"gpt_step.onnx"}
+    report = gpt_int8_report(src / "gpt_step.onnx", tmp_path / "int8" / "gpt_step.onnx", original, steps=10)
+    assert _parity_holds(report) and report.max_abs_logit_diff > 0   # quantised, and close
+    request = GenerationRequest(segments=[SegmentRequest("a person walks", 1.0)], seed=3, guidance=3.0)
+    motion = OnnxEngine.load(tmp_path / "int8", intra_op_threads=1).generate(request)
+    assert motion.joints.shape[0] == 20 and np.isfinite(motion.joints).all()
+    with pytest.raises(ValueError, match="already int8-dynamic"):
+        quantize_bundle_gpt(tmp_path / "int8", tmp_path / "twice")
 
 
 def test_int8_gpt_step_computes_the_same_on_cpus_without_vnni(tmp_path):

@@ -1,6 +1,7 @@
 """`t2m eval`: the papers' Table 1 (and T2LM's multi-sentence metrics) for a VQ-VAE + GPT, or for the masked family
 (joint VQ + masked + residual transformer), or for T2M-HiFiGPT (residual VQ + double-tier GPT), on a test split. The
-family is the token run given: --gpt, --masked or --hifigpt."""
+family is the token run given: --gpt, --masked or --hifigpt; or a served GPT bundle (--bundle DIR: its own ONNX
+graphs, no training runs)."""
 from __future__ import annotations
 
 import argparse
@@ -16,10 +17,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "
                     "GPT family: --vq VQ_RUN --gpt RUN. Masked family: --vq JOINT_VQ_RUN --masked RUN --residual RUN "
                     "[--length RUN], decoded by the service's loop (t2m.decoding.masked). T2M-HiFiGPT: --vq "
-                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt).")
+                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt). A served GPT bundle: --bundle DIR (its "
+                    "text, step and decoder graphs in onnxruntime through the service's loop; no VQ-reconstruction "
+                    "row).")
     parser.add_argument("--data", required=True, help="dataset directory in HumanML3D layout")
     parser.add_argument("--evaluator", required=True, help="evaluator run directory (t2m train evaluator)")
-    parser.add_argument("--vq", required=True, help="VQ-VAE run directory (the joint VQ for the masked family)")
+    parser.add_argument("--vq", default=None, help="VQ-VAE run directory (the joint VQ for the masked family)")
+    parser.add_argument("--bundle", default=None,
+                        help="a served GPT-family bundle instead of runs (no --vq): evaluates what the service runs")
     parser.add_argument("--gpt", default=None, help="GPT run directory (the GPT family)")
     parser.add_argument("--masked", default=None, help="masked transformer run directory (the masked family)")
     parser.add_argument("--hifigpt", default=None, help="double-tier GPT run directory (T2M-HiFiGPT)")
@@ -60,7 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_evaluate)
 
 
-DEFAULT_GUIDANCE = {"gpt": [1.0, 3.0], "masked": [1.0, 4.0], "hifigpt": [1.0, 3.0]}
+DEFAULT_GUIDANCE = {"gpt": [1.0, 3.0], "masked": [1.0, 4.0], "hifigpt": [1.0, 3.0], "bundle": [1.0, 3.0]}
 TOKEN_RUNS = ("gpt", "masked", "hifigpt")
 MASKED_OPTIONS = ("steps", "residual_guidance", "residual_top_k")   # MaskedSettings fields set from the CLI
 MASKED_RUNS = ("residual", "length")
@@ -72,6 +77,16 @@ def _family(args: argparse.Namespace) -> str:
     from t2m.cli.main import CliError
 
     given = [name for name in TOKEN_RUNS if getattr(args, name) is not None]
+    if args.bundle is not None:
+        if given or args.vq is not None:
+            raise CliError("--bundle replaces --vq and the token runs: give either --bundle DIR or --vq with one of "
+                           "--gpt/--masked/--hifigpt")
+        for name in (*MASKED_RUNS, *MASKED_OPTIONS):
+            if getattr(args, name) is not None:
+                raise CliError(f"--{name.replace('_', '-')} applies to the masked family (--masked), not to --bundle")
+        return "bundle"
+    if args.vq is None:
+        raise CliError("give --vq VQ_RUN with the token run (or --bundle DIR)")
     if len(given) != 1:
         raise CliError("give exactly one of --gpt RUN (GPT family), --masked RUN (masked family) or --hifigpt RUN "
                        "(T2M-HiFiGPT)")
@@ -123,7 +138,11 @@ def _evaluate(args: argparse.Namespace) -> int:
     options.check()
     started = time.time()
     reader = MotionDirectory(args.data, args.split)
-    if family == "gpt":
+    if family == "bundle":
+        from t2m.export.bundle_family import load_bundle_models
+
+        models = load_bundle_models(args.evaluator, args.bundle, threads=args.threads)
+    elif family == "gpt":
         models = load_models(args.evaluator, args.vq, args.gpt, reader.mean, reader.std)
     elif family == "hifigpt":
         models = load_hifigpt_models(args.evaluator, args.vq, args.hifigpt, reader.mean, reader.std)

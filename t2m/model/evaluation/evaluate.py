@@ -43,7 +43,7 @@ from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_t
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 if TYPE_CHECKING:
-    from t2m.model.evaluation.family import CodeFamily
+    from t2m.model.evaluation.family import CodeDecoder, CodeFamily, TextFeatureSource
     from t2m.model.evaluation.masked_family import MaskedSettings
     from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
@@ -97,19 +97,25 @@ class EvalOptions:
 @dataclass
 class Models:
     """The evaluator, the VQ-VAE (with the statistics its outputs are de-normalised with) and the family that makes
-    its codes."""
+    its codes. A served bundle has no VQ module: `vq` is None, its `decoder` (decoder.onnx) decodes, and its
+    `family_text` (text_encoder.onnx) makes the family's text features, so the evaluation measures what is served."""
 
     evaluator: MotionEvaluator
-    vq: MotionVQVAE | JointVQVAE
+    vq: MotionVQVAE | JointVQVAE | None
     family: CodeFamily
     vq_mean: np.ndarray
     vq_std: np.ndarray
     evaluator_text: str = "minilm"
     paths: dict[str, str] = field(default_factory=dict)
+    decoder: CodeDecoder | None = None
+    family_text: TextFeatureSource | None = None
 
     @property
     def frames_per_token(self) -> int:
         """Frames per code row of the VQ (4; 8 for T2M-HiFiGPT's RVQ-VAE): crops are cut to multiples of it."""
+        if self.decoder is not None:
+            return int(self.decoder.frames_per_token)
+        assert self.vq is not None, "Models needs a VQ or a decoder"
         return int(self.vq.frames_per_token)
 
 
@@ -280,8 +286,12 @@ def decode(models: Models, codes: Sequence[Sequence[int]] | Sequence[np.ndarray]
     for indices in _groups_by_length(codes).values():
         for start in range(0, len(indices), batch_size):
             chunk = indices[start:start + batch_size]
-            batch = torch.as_tensor(np.stack([np.asarray(codes[i], dtype=np.int64) for i in chunk]))
-            features = models.vq.decode(batch).numpy() * models.vq_std + models.vq_mean
+            stacked = np.stack([np.asarray(codes[i], dtype=np.int64) for i in chunk])
+            if models.decoder is not None:
+                features = models.decoder.decode_batch(stacked)
+            else:
+                assert models.vq is not None, "Models needs a VQ or a decoder"
+                features = models.vq.decode(torch.as_tensor(stacked)).numpy() * models.vq_std + models.vq_mean
             for row, index in enumerate(chunk):
                 out[index] = features[row].astype(np.float32)
     return out
@@ -290,6 +300,8 @@ def decode(models: Models, codes: Sequence[Sequence[int]] | Sequence[np.ndarray]
 @torch.no_grad()
 def reconstruct_codes(models: Models, motions: Sequence[np.ndarray], batch_size: int = 128) -> list[np.ndarray]:
     """Raw motions -> their VQ code sequences."""
+    if models.vq is None:
+        raise ValueError("reconstruction needs a VQ encoder (a served bundle has only the decoder)")
     codes: list[np.ndarray] = [np.zeros(0)] * len(motions)
     for indices in _groups_by_length(motions).values():
         for start in range(0, len(indices), batch_size):
@@ -353,16 +365,23 @@ class TextFeatures:
     """Caption -> frozen text feature, per encoder, encoded once (optionally cached in an .npz)."""
 
     def __init__(self, captions: Sequence[str], encoders: Sequence[str], cache: str | Path | None = None,
-                 encoder_kwargs: dict[str, dict[str, Any]] | None = None):
+                 encoder_kwargs: dict[str, dict[str, Any]] | None = None,
+                 own: dict[str, TextFeatureSource] | None = None):
+        """`own`: encoders given as objects (a bundle's text graph), used as they are and never cached."""
         from t2m.model.networks.text_encoders import cache_text_features, get_text_encoder
 
         unique = list(dict.fromkeys(captions))
         self.table: dict[str, dict[str, np.ndarray]] = {}
-        for name in dict.fromkeys(encoders):
+        own = own or {}
+        for name, source in own.items():
+            features = np.concatenate([source.encode(unique[i:i + 256]) for i in range(0, len(unique), 256)])
+            self.table[name] = dict(zip(unique, features))
+        cached = [name for name in dict.fromkeys(encoders) if name not in own]
+        for name in cached:
             encoder = get_text_encoder(name, **(encoder_kwargs or {}).get(name, {}))
             if cache is not None:
                 path = Path(cache)
-                path = path if len(set(encoders)) == 1 else path.with_name(f"{path.stem}_{name}{path.suffix}")
+                path = path if len(cached) == 1 else path.with_name(f"{path.stem}_{name}{path.suffix}")
                 self.table[name] = cache_text_features(unique, encoder, path)
             else:
                 self.table[name] = dict(zip(unique, encoder.encode(unique)))
@@ -382,8 +401,9 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
     per_token = models.frames_per_token
     clips = read_clips(reader, options.limit, min_frames=per_token)
     max_frames = min(models.evaluator.config.max_frames, per_token * models.family.max_tokens)
+    own = {models.family.text_encoder: models.family_text} if models.family_text is not None else None
     texts = TextFeatures([c for cs in clips.captions for c in cs], [models.evaluator_text, models.family.text_encoder],
-                         text_cache, encoder_kwargs)
+                         text_cache, encoder_kwargs, own)
     evaluator = models.evaluator
 
     real_windows = [w for f in clips.features for w in windows(f, options.window, options.stride)]
@@ -408,12 +428,14 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
                                             reference_emb, options, seed)
         row["real"]["pelvis_jump_within"] = float(real_within.mean())
 
-        reference_codes = reconstruct_codes(models, reference.motions, options.batch_size)
-        recon = decode(models, reference_codes, options.batch_size)
-        row["recon"] = single_motion_metrics(text_emb_a, embed_motions(evaluator, recon, normalized=False),
-                                             reference_emb, options, seed)
-        row["recon"]["mpjpe_mm"] = mpjpe_mm(reference.motions, recon)
-        row["recon"]["mpjpe_root_mm"] = mpjpe_mm(reference.motions, recon, root_relative=True)
+        reference_codes = None
+        if models.vq is not None:  # a served bundle has no VQ encoder: no reconstruction row
+            reference_codes = reconstruct_codes(models, reference.motions, options.batch_size)
+            recon = decode(models, reference_codes, options.batch_size)
+            row["recon"] = single_motion_metrics(text_emb_a, embed_motions(evaluator, recon, normalized=False),
+                                                 reference_emb, options, seed)
+            row["recon"]["mpjpe_mm"] = mpjpe_mm(reference.motions, recon)
+            row["recon"]["mpjpe_root_mm"] = mpjpe_mm(reference.motions, recon, root_relative=True)
 
         cond = texts(models.family.text_encoder, reference.captions)
         tokens = reference.tokens
@@ -481,17 +503,20 @@ def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], stre
     return stream_metrics(models.evaluator, motions, lengths, options, real_window_emb)
 
 
-def real_stream_references(models: Models, motions: Sequence[np.ndarray], codes: Sequence[np.ndarray],
+def real_stream_references(models: Models, motions: Sequence[np.ndarray], codes: Sequence[np.ndarray] | None,
                            streams: np.ndarray, options: EvalOptions,
                            real_window_emb: np.ndarray | None) -> dict[str, dict[str, float]]:
     """The streams' own real crops (`motions`, with their VQ `codes`), pasted with hard cuts ("pasted") and as their
-    codes concatenated and decoded once ("pasted_codes"): the scale against which the generated streams' joins are
-    read."""
+    codes concatenated and decoded once ("pasted_codes", only with a VQ encoder): the scale against which the
+    generated streams' joins are read."""
     lengths = [[len(motions[i]) for i in stream] for stream in streams]
     pasted = [np.concatenate([motions[i] for i in stream]) for stream in streams]
-    decoded = decode(models, [np.concatenate([codes[i] for i in stream]) for stream in streams], options.batch_size)
-    return {"pasted": stream_metrics(models.evaluator, pasted, lengths, options, real_window_emb),
-            "pasted_codes": stream_metrics(models.evaluator, decoded, lengths, options, real_window_emb)}
+    result = {"pasted": stream_metrics(models.evaluator, pasted, lengths, options, real_window_emb)}
+    if codes is not None:
+        decoded = decode(models, [np.concatenate([codes[i] for i in stream]) for stream in streams],
+                         options.batch_size)
+        result["pasted_codes"] = stream_metrics(models.evaluator, decoded, lengths, options, real_window_emb)
+    return result
 
 
 def stream_metrics(evaluator: MotionEvaluator | None, motions: Sequence[np.ndarray],
@@ -576,7 +601,8 @@ def _table(summary: dict[str, dict[str, list[float]]], rows: list[str], columns)
 
 
 MODEL_LABELS = {"evaluator": "evaluator", "vq": "VQ", "gpt": "GPT", "masked": "masked transformer",
-                "residual": "residual transformer", "length": "length estimator", "hifigpt": "double-tier GPT"}
+                "residual": "residual transformer", "length": "length estimator", "hifigpt": "double-tier GPT",
+                "bundle": "served bundle"}
 
 
 def _models_line(result: dict[str, Any]) -> str:
@@ -599,7 +625,7 @@ def _models_line(result: dict[str, Any]) -> str:
 def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
     """The markdown report: Table 1 (single sentences) and Table 2 (streams of sentences)."""
     summary, options, counts = result["summary"], result["options"], result["counts"]
-    single = ["real", "recon"] + [r for r in summary if r.startswith(("gen_", "free_"))]
+    single = ["real"] + [r for r in summary if r == "recon" or r.startswith(("gen_", "free_"))]
     lines = [f"# {title}", "",
              f"Split `{options['split']}`: {counts['clips']} clips; {options['repeats']} repeats "
              f"(mean ± 95% interval); seed {options['seed']}; sampling temperature {options['temperature']:g}, "
@@ -614,6 +640,8 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
              f"({min(options['mm_pairs'], options['mm_repeats'])} pairs each); MPJPE on joints recovered from the "
              f"features, in mm: global positions (the root trajectory is integrated from velocities, so its drift "
              f"counts) and root-relative (each frame's pose around its pelvis).", ""]
+    if "recon" not in summary:
+        lines[-1:] = ["No VQ reconstruction row: a served bundle has the VQ's decoder but not its encoder.", ""]
     lines += _table(summary, single, TABLE1_COLUMNS)
     free = [r for r in single if r.startswith("free_")]
     if free:  # the same draws for every guidance scale
@@ -629,8 +657,11 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
                   f"{joined} and decoded once. FIDs against {counts['real_windows']} real "
                   f"{options['window']}-frame windows (stride {options['stride']}); transition windows are centred on "
                   f"the joins. Pelvis Δv: change of the pelvis velocity between consecutive frames (the Real motion "
-                  f"row: inside real clips). The last two rows put the same streams' real crops together instead "
-                  f"of generating them: with hard cuts, and as their VQ codes decoded once.", ""]
+                  f"row: inside real clips). " + (
+                      "The last two rows put the same streams' real crops together instead of generating them: with "
+                      "hard cuts, and as their VQ codes decoded once." if "pasted_codes" in summary else
+                      "The last row puts the same streams' real crops together with hard cuts instead of generating "
+                      "them."), ""]
         lines += _table(summary, ["real"] + multi, TABLE2_COLUMNS)
     return "\n".join(lines) + "\n"
 

@@ -32,3 +32,20 @@ class CodeFamily(Protocol):
     def estimate_tokens(self, cond: np.ndarray, rng: np.random.Generator) -> list[int] | None:
         """Token counts the family would choose itself for these texts (a length estimator), or None."""
         ...
+
+
+class CodeDecoder(Protocol):
+    """Codes -> raw motion features without a VQ module: a served bundle's decoder.onnx (t2m.export.bundle_family).
+    An evaluation decoding through one has no VQ encoder, so it has no VQ-reconstruction row."""
+
+    frames_per_token: int
+
+    def decode_batch(self, codes: np.ndarray) -> np.ndarray:
+        """int64 codes [B, T] (or the family's layout per row) -> de-normalised float32 features [B, frames, D]."""
+        ...
+
+
+class TextFeatureSource(Protocol):
+    """A family's own text encoder (a bundle's text_encoder.onnx): captions -> the features it is conditioned on."""
+
+    def encode(self, texts: Sequence[str]) -> np.ndarray: ...

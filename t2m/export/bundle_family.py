@@ -1,0 +1,81 @@
+"""`t2m eval --bundle DIR`: Table 1 for exactly what a GPT bundle serves, without its training runs.
+
+The family's codes come from the service's own GPT loop (t2m.service.engine.gpt_codes over t2m.decoding.gpt) stepping
+the bundle's gpt_step.onnx, its text features from the bundle's tokenizer + text_encoder.onnx, and the motions from
+its decoder.onnx, all loaded by the service's loader (hashes checked). So an int8 graph is measured as served. A
+bundle has no VQ encoder: the evaluation has no VQ-reconstruction row (and no "real crops' VQ codes" stream row).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from t2m.decoding.gpt import SamplingJob
+from t2m.model.evaluation.evaluate import Models
+
+__all__ = ["BundleDecoder", "BundleGptFamily", "load_bundle_models"]
+
+
+class BundleGptFamily:
+    """Exactly `tokens[i]` codes per text from a bundle's step graph: every row one target segment of one job, as
+    the PyTorch GPT family's reference job, so both draw the same uniforms in the same order."""
+
+    name = "gpt"
+    text_encoder = "bundle"        # features from the bundle's own text graph (Models.family_text)
+    batch_by_length = False
+
+    def __init__(self, codes: Any, max_tokens: int, path: str) -> None:
+        self._codes = codes        # t2m.service.engine.gpt_codes.GptCodes
+        self.max_tokens = max_tokens
+        self.paths = {"bundle": path}
+        self.settings: dict[str, Any] = {}
+
+    def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
+              top_k: int | None, rng: np.random.Generator) -> list[Any]:
+        job = SamplingJob(conds=np.asarray(cond, np.float32), targets=[int(t) for t in tokens], guidance=guidance,
+                          temperature=temperature if temperature > 0 else 1.0, top_k=top_k, rng=rng,
+                          greedy=temperature == 0)
+        (result,) = self._codes.sample([job], self.max_tokens, None)
+        return [np.asarray(c, np.int64) for c in result]
+
+    def estimate_tokens(self, cond: np.ndarray, rng: np.random.Generator) -> list[int] | None:
+        return None
+
+
+class BundleDecoder:
+    """decoder.onnx on a batch of equal-length code rows (the service decodes one row at a time; the graph takes
+    any batch, and de-normalises inside)."""
+
+    def __init__(self, session: Any, frames_per_token: int) -> None:
+        self.session = session
+        self.frames_per_token = frames_per_token
+
+    def decode_batch(self, codes: np.ndarray) -> np.ndarray:
+        (features,) = self.session.run(["features"], {"codes": np.asarray(codes, np.int64)})
+        return np.asarray(features, np.float32)
+
+
+def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, threads: int = 1) -> Models:
+    """The evaluator and a served GPT bundle (its text graph, step graph and decoder in onnxruntime)."""
+    from t2m.model.training.checkpoint import load_model
+    from t2m.service.engine.bundle import load_bundle
+    from t2m.service.engine.gpt_codes import GptCodes
+    from t2m.service.engine.text import TextEncoder, load_tokenizer
+
+    bundle = load_bundle(bundle_dir, intra_op_threads=threads)
+    manifest = bundle.manifest
+    if manifest.family != "gpt":
+        raise ValueError(f"{bundle_dir}: --bundle evaluates GPT-family bundles; this one is {manifest.family!r}")
+    evaluator = load_model(evaluator_run, expect_kind="evaluator")
+    if evaluator.config.feature_dim != manifest.feature_dim:
+        raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, bundle "
+                         f"{manifest.feature_dim}")
+    family = BundleGptFamily(GptCodes(bundle), manifest.max_tokens, str(bundle_dir))
+    text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
+    return Models(evaluator, None, family, bundle.mean.astype(np.float32), bundle.std.astype(np.float32),
+                  evaluator_text=evaluator.config.text_encoder,
+                  paths={"evaluator": str(evaluator_run), "bundle": str(bundle_dir)},
+                  decoder=BundleDecoder(bundle.decoder_session, manifest.frames_per_token), family_text=text)
