@@ -32,6 +32,7 @@ class Replica(Protocol):
     def signal(self, signum: int) -> None: ...
     def wait_exit(self, timeout_s: float) -> int: ...
     def remove(self) -> None: ...
+    def logs(self) -> str: ...
 
 
 @dataclass
@@ -68,6 +69,9 @@ class ProcessReplica:
     def wait_exit(self, timeout_s: float) -> int:
         assert self.process is not None
         return self.process.wait(timeout=timeout_s)
+
+    def logs(self) -> str:
+        return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
 
     def remove(self) -> None:
         if self.process is not None and self.process.poll() is None:
@@ -121,6 +125,10 @@ class ContainerReplica:
         result = subprocess.run(["docker", "wait", self.name], capture_output=True, text=True, timeout=timeout_s,
                                 check=True)
         return int(result.stdout.strip())
+
+    def logs(self) -> str:
+        result = subprocess.run(["docker", "logs", self.name], capture_output=True, text=True, check=False)
+        return result.stdout + result.stderr
 
     def remove(self) -> None:
         self._docker("rm", "-f", self.name, check=False)

@@ -68,6 +68,7 @@ class FailoverReport:
     retried: int
     retried_from_killed: int
     retried_from_stopped: int
+    seconds: float
     kill_recovery_s: float
     killed_ok_after_rejoin: int
     stopped_exit_code: int
@@ -76,8 +77,8 @@ class FailoverReport:
 
 
 def failover(front: NginxFront, replicas: list[Replica], clients: int, seconds: float) -> FailoverReport:
-    """Load through nginx for `seconds`; at 1/4 of it replica 0 is killed (SIGKILL) and restarted at once, at 1/2
-    replica 1 is stopped (SIGTERM: it drains), then restarted."""
+    """Load through nginx; after `seconds` / 4 replica 0 is killed (SIGKILL) and restarted at once, after `seconds` / 2
+    replica 1 is stopped (SIGTERM: it drains) and restarted; the load goes on until both are back and serving."""
     killed, stopped = replicas[0], replicas[1]
     log_start = len(read_access_log(front.access_log))
     timings: dict[str, float] = {}
@@ -100,13 +101,25 @@ def failover(front: NginxFront, replicas: list[Replica], clients: int, seconds: 
         stopped.wait_healthy()
         return drained
 
-    async def run() -> tuple[PhaseResult, float, float]:
-        load = asyncio.create_task(run_phase(front.url, "failover", clients, seconds))
+    async def run() -> tuple[list[PhaseResult], float, float]:
+        """Load in chunks until both replicas are back, then `seconds` / 2 more in which the rejoined serve too."""
         kill = asyncio.create_task(_after(seconds / 4, kill_and_restart))
         stop = asyncio.create_task(_after(seconds / 2, stop_and_restart))
-        return await load, await kill, await stop
+        chunks = []
+        while not (kill.done() and stop.done()) or not chunks:
+            chunks.append(await run_phase(front.url, "failover", clients, min(5.0, seconds)))
+        chunks.append(await run_phase(front.url, "after rejoining", clients, seconds / 2))
+        return chunks, await kill, await stop
 
-    result, recovery_s, drain_s = asyncio.run(run())
+    chunks, recovery_s, drain_s = asyncio.run(run())
+    result = PhaseResult(name="failover", clients=clients, seconds=sum(c.seconds for c in chunks))
+    for chunk in chunks:
+        result.status_2xx += chunk.status_2xx
+        result.status_4xx += chunk.status_4xx
+        result.status_429 += chunk.status_429
+        result.status_5xx += chunk.status_5xx
+        result.connection_errors += chunk.connection_errors
+        result.error_samples += chunk.error_samples
     lines = read_access_log(front.access_log)[log_start:]
     generate = [line for line in lines if "/generate" in line.request]
     retried = [line for line in generate if line.retried]
@@ -116,7 +129,7 @@ def failover(front: NginxFront, replicas: list[Replica], clients: int, seconds: 
         requests=result.requests, ok=result.status_2xx, failed=_failed(result), retried=len(retried),
         retried_from_killed=sum(line.upstreams[0] == killed_addr for line in retried),
         retried_from_stopped=sum(line.upstreams[0] == stopped_addr for line in retried),
-        kill_recovery_s=round(recovery_s, 2),
+        seconds=round(result.seconds, 1), kill_recovery_s=round(recovery_s, 2),
         killed_ok_after_rejoin=sum(line.upstreams[-1] == killed_addr and line.status == 200 for line in rejoined),
         stopped_exit_code=int(timings["exit_code"]), stop_drain_s=round(drain_s, 2),
         error_samples=result.error_samples[:5])
