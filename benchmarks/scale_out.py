@@ -21,6 +21,7 @@ import signal
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -38,7 +39,7 @@ def _failed(result: PhaseResult) -> int:
     return result.requests - result.status_2xx
 
 
-async def _after(delay_s: float, action) -> float:  # type: ignore[no-untyped-def]
+async def _after(delay_s: float, action: Callable[[], float]) -> float:
     await asyncio.sleep(delay_s)
     return await asyncio.to_thread(action)
 
@@ -105,7 +106,7 @@ def failover(front: NginxFront, replicas: list[Replica], clients: int, seconds: 
         """Load in chunks until both replicas are back, then `seconds` / 2 more in which the rejoined serve too."""
         kill = asyncio.create_task(_after(seconds / 4, kill_and_restart))
         stop = asyncio.create_task(_after(seconds / 2, stop_and_restart))
-        chunks = []
+        chunks: list[PhaseResult] = []
         while not (kill.done() and stop.done()) or not chunks:
             chunks.append(await run_phase(front.url, "failover", clients, min(5.0, seconds)))
         chunks.append(await run_phase(front.url, "after rejoining", clients, seconds / 2))
