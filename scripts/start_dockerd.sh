@@ -17,6 +17,9 @@ wait_for() {  # wait_for SECONDS COMMAND...: until COMMAND succeeds
   done
 }
 socket=/run/containerd/containerd.sock
+if [ -S "$socket" ] && ! pgrep -x containerd > /dev/null; then
+  rm -f "$socket"  # left by a containerd that was killed: dockerd would wait on it in vain
+fi
 if [ ! -S "$socket" ]; then
   command -v containerd > /dev/null || { echo "no containerd (apt-get install docker.io)" >&2; exit 1; }
   nohup nice -n 19 containerd > "$logs/containerd.log" 2>&1 &
