@@ -13,7 +13,7 @@ import yaml
 
 from tests.service.conftest import REPO
 
-ENTRYPOINT = ["t2m", "serve", "--host", "0.0.0.0", "--port", "8000"]
+ENTRYPOINT = ["t2m", "serve"]
 
 
 def _dockerfile() -> str:
@@ -27,12 +27,21 @@ def _instruction(text: str, name: str) -> list[str]:
 
 
 def test_entrypoint_is_the_local_serve_command():
-    (entrypoint,) = _instruction(_dockerfile(), "ENTRYPOINT")
+    text = _dockerfile()
+    (entrypoint,) = _instruction(text, "ENTRYPOINT")
     assert json.loads(entrypoint) == ENTRYPOINT
     from t2m.cli.main import build_parser
 
-    args = build_parser(ENTRYPOINT[1]).parse_args(ENTRYPOINT[1:])
+    (env,) = _instruction(text.split(" AS runtime")[1], "ENV")
+    image_env = dict(re.findall(r"(T2M_\w+)=(\S+)", env))
+    assert image_env == {"T2M_HOST": "0.0.0.0", "T2M_PORT": "8000"}
+    with pytest.MonkeyPatch.context() as patch:  # the image's environment decides where `t2m serve` listens
+        for name, value in image_env.items():
+            patch.setenv(name, value)
+        args = build_parser(ENTRYPOINT[1]).parse_args(ENTRYPOINT[1:])
     assert args.command == "serve" and args.host == "0.0.0.0" and args.port == 8000
+    (port,) = _instruction(text, "EXPOSE")
+    assert port == image_env["T2M_PORT"]
     scripts = re.search(r"\[project\.scripts\]\s*t2m = \"([\w.:]+)\"", (REPO / "pyproject.toml").read_text())
     assert scripts and scripts.group(1) == "t2m.cli.main:main"
 
@@ -46,7 +55,7 @@ def test_dockerfile_is_multistage_non_root_with_model_and_healthcheck():
     users = _instruction(runtime, "USER")
     assert users and users[-1] not in ("root", "0")
     (health,) = _instruction(text, "HEALTHCHECK")
-    assert "http://127.0.0.1:8000/health" in health
+    assert "'http://127.0.0.1:' + os.environ.get('T2M_PORT', '8000') + '/health'" in health  # where t2m serve listens
     assert "T2M_MODEL_DIR" not in text  # the default model is inside the installed wheel
     ignored = [line.strip() for line in (REPO / ".dockerignore").read_text().splitlines()
                if line.strip() and not line.startswith("#")]

@@ -2,9 +2,14 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from t2m.service.settings import Settings
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -12,8 +17,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "serve", help="run the HTTP API (POST /generate, GET /health, GET /metrics)",
         description="Serve the model(s) over HTTP. Every T2M_* environment variable of service/settings.py applies "
                     "(T2M_MAX_QUEUE, T2M_REQUEST_TIMEOUT_S, T2M_API_KEY, T2M_CORS_ORIGINS, ...).")
-    parser.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    # the container sets T2M_HOST/T2M_PORT, so that its HEALTHCHECK probes the port the server really listens on
+    parser.add_argument("--host", default=os.environ.get("T2M_HOST", "127.0.0.1"),
+                        help="interface to listen on (default: T2M_HOST, else 127.0.0.1)")
+    parser.add_argument("--port", type=_port, default=os.environ.get("T2M_PORT", "8000"),
+                        help="TCP port (default: T2M_PORT, else 8000)")
     parser.add_argument("--model", type=Path, action="append", default=None, metavar="DIR",
                         help="model bundle directory; repeat to serve several (the first is the default, a request "
                              "picks another by its manifest name). Given, it names every model served "
@@ -24,6 +32,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="uvicorn worker processes, each with its own model copies and /metrics (default 1)")
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     parser.set_defaults(func=_serve)
+
+
+def _port(text: str) -> int:
+    """A TCP port number (also the T2M_PORT default, which argparse converts with this too)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
 
 
 def model_environment(models: Sequence[Path]) -> dict[str, str]:
@@ -55,6 +71,11 @@ def check_bundles(directories: Sequence[Path]) -> None:
         seen[name] = directory
 
 
+def graceful_shutdown_seconds(settings: Settings) -> int:
+    """How long a stopping server waits for its requests: the request timeout and a few seconds to send the answer."""
+    return math.ceil(settings.request_timeout_s) + 5
+
+
 def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -67,7 +88,11 @@ def _serve(args: argparse.Namespace) -> int:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
     if args.model:
         os.environ.update(model_environment(args.model))
-    check_bundles(Settings().model_dirs)
+    settings = Settings()
+    check_bundles(settings.model_dirs)
+    # SIGTERM (docker stop, Kubernetes): stop accepting, finish the requests in flight, exit. A generation ends
+    # within the request timeout (504 after it), so waiting longer than that only delays the exit of a stuck one.
     uvicorn.run("t2m.service.app:app_from_env", factory=True, host=args.host, port=args.port, workers=args.workers,
-                log_level=args.log_level, proxy_headers=True, forwarded_allow_ips="*")
+                log_level=args.log_level, proxy_headers=True, forwarded_allow_ips="*",
+                timeout_graceful_shutdown=graceful_shutdown_seconds(settings))
     return 0
