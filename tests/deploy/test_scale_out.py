@@ -86,7 +86,10 @@ def replicas(tmp_path) -> Iterator[list[Replica]]:
     image = os.environ.get("T2M_DEPLOY_IMAGE") or None
     if image and subprocess.run(["docker", "image", "inspect", image], capture_output=True).returncode != 0:
         pytest.fail(f"T2M_DEPLOY_IMAGE={image} is not an image here")
-    started = make_replicas(2, tmp_path / "replicas", image=image)
+    # Each request waits 1.5 s in its replica's batch window before it generates: a kill or stop sent once a replica
+    # is seen busy then always lands mid-request (an idle machine generates a motion in ~0.1 s, a race otherwise).
+    started = make_replicas(2, tmp_path / "replicas", image=image, env={"T2M_BATCH_WINDOW_MS": "1500",
+                                                                                  "T2M_CONTINUOUS_BATCHING": "false"})
     try:
         for replica in started:
             replica.start()
@@ -99,14 +102,18 @@ def replicas(tmp_path) -> Iterator[list[Replica]]:
 
 
 def _in_flight(url: str) -> float:
+    """Requests the replica holds: queued (in its batch window) or generating; a kill loses both."""
     text = httpx.get(f"{url}/metrics", timeout=30).text
-    return sum(float(value) for value in re.findall(r"^t2m_in_flight\{[^}]*\} (\S+)$", text, re.MULTILINE))
+    pattern = r"^t2m_(?:in_flight|queue_depth)\{[^}]*\} (\S+)$"
+    return sum(float(value) for value in re.findall(pattern, text, re.MULTILINE))
 
 
 def _wait_in_flight(replica: Replica, pending: list) -> None:
     """Until the replica is generating (its t2m_in_flight gauge); fails if every request ended first."""
     while _in_flight(replica.url) < 1:
-        assert not all(future.done() for future in pending), "every request ended before the replica was caught busy"
+        if all(future.done() for future in pending):
+            outcomes = [f.exception() or f.result().status_code for f in pending]
+            raise AssertionError(f"every request ended before the replica was caught busy: {outcomes}")
         time.sleep(0.1)
 
 
