@@ -116,16 +116,7 @@ def machine() -> dict[str, str]:
 
 
 def _pool(phases: list[PhaseResult]) -> PhaseResult:
-    pooled = PhaseResult(name=phases[0].name, clients=phases[0].clients, seconds=sum(p.seconds for p in phases))
-    for phase in phases:
-        pooled.latencies_ms += phase.latencies_ms
-        pooled.status_2xx += phase.status_2xx
-        pooled.status_4xx += phase.status_4xx
-        pooled.status_429 += phase.status_429
-        pooled.status_5xx += phase.status_5xx
-        pooled.connection_errors += phase.connection_errors
-        pooled.error_samples += phase.error_samples
-    return pooled
+    return PhaseResult.pooled(phases[0].name, phases[0].clients, phases)
 
 
 def _ms(value: float | None) -> str:

@@ -82,6 +82,20 @@ class PhaseResult:
     connection_errors: int = 0
     error_samples: list[str] = field(default_factory=list)
 
+    @classmethod
+    def pooled(cls, name: str, clients: int, phases: list[PhaseResult]) -> PhaseResult:
+        """One result from several phases' answers (their seconds added): rounds of a benchmark, or its chunks."""
+        pooled = cls(name=name, clients=clients, seconds=sum(p.seconds for p in phases))
+        for phase in phases:
+            pooled.latencies_ms += phase.latencies_ms
+            pooled.status_2xx += phase.status_2xx
+            pooled.status_4xx += phase.status_4xx
+            pooled.status_429 += phase.status_429
+            pooled.status_5xx += phase.status_5xx
+            pooled.connection_errors += phase.connection_errors
+            pooled.error_samples += phase.error_samples
+        return pooled
+
     @property
     def requests(self) -> int:
         return self.status_2xx + self.status_4xx + self.status_429 + self.status_5xx + self.connection_errors

@@ -113,14 +113,7 @@ def failover(front: NginxFront, replicas: list[Replica], clients: int, seconds: 
         return chunks, await kill, await stop
 
     chunks, recovery_s, drain_s = asyncio.run(run())
-    result = PhaseResult(name="failover", clients=clients, seconds=sum(c.seconds for c in chunks))
-    for chunk in chunks:
-        result.status_2xx += chunk.status_2xx
-        result.status_4xx += chunk.status_4xx
-        result.status_429 += chunk.status_429
-        result.status_5xx += chunk.status_5xx
-        result.connection_errors += chunk.connection_errors
-        result.error_samples += chunk.error_samples
+    result = PhaseResult.pooled("failover", clients, chunks)
     lines = read_access_log(front.access_log)[log_start:]
     generate = [line for line in lines if "/generate" in line.request]
     retried = [line for line in generate if line.retried]
