@@ -30,7 +30,7 @@ import httpx
 
 if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, SENTENCES, PhaseResult
+from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, SENTENCES, PhaseResult, post_and_record
 from benchmarks.server_process import require_loopback, running_server
 
 __all__ = ["MODES", "WORKLOADS", "machine", "main", "run_workload", "warm_up"]
@@ -50,25 +50,9 @@ async def _client(client: httpx.AsyncClient, url: str, make_body: Callable[[], d
                   deadline: float) -> None:
     """One user: a request, then the next as soon as it is answered, until the deadline."""
     while time.monotonic() < deadline:
-        started = time.perf_counter()
-        try:
-            response = await client.post(f"{url}/generate", json=make_body())
-            await response.aread()
-        except httpx.HTTPError as error:
-            result.connection_errors += 1
-            result.error_samples.append(f"{type(error).__name__}: {error}")
-            await asyncio.sleep(0.1)
-            continue
-        if response.status_code == 200:
-            result.status_2xx += 1
-            result.latencies_ms.append((time.perf_counter() - started) * 1000.0)
-        elif response.status_code == 429:
-            result.status_429 += 1
+        response = await post_and_record(client, url, make_body(), result)
+        if response is not None and response.status_code == 429:
             await asyncio.sleep(float(response.headers.get("Retry-After", "1") or 1))
-        else:
-            result.status_5xx += response.status_code >= 500
-            result.status_4xx += response.status_code < 500
-            result.error_samples.append(f"HTTP {response.status_code}: {response.text[:200]}")
 
 
 async def run_workload(url: str, workload: str, seconds: float, *, clients: int, long_clients: int,

@@ -143,36 +143,44 @@ def request_body(rng: random.Random, segment_seconds: float, segments: int, fmt:
             "format": fmt, "seed": rng.randrange(2**31)}
 
 
+async def post_and_record(client: httpx.AsyncClient, url: str, body: dict, result: PhaseResult,
+                          headers: dict[str, str] | None = None) -> httpx.Response | None:
+    """One POST /generate, counted into ``result`` by its outcome (2xx latency, 429, 4xx, 5xx, connection error);
+    returns the response, or None after a connection error (it waits 0.1 s first)."""
+    started = time.perf_counter()
+    try:
+        response = await client.post(f"{url}/generate", json=body, headers=headers)
+        await response.aread()
+    except httpx.HTTPError as error:
+        result.connection_errors += 1
+        result.error_samples.append(f"{type(error).__name__}: {error}")
+        await asyncio.sleep(0.1)
+        return None
+    status = response.status_code
+    if 200 <= status < 300:
+        result.status_2xx += 1
+        result.latencies_ms.append((time.perf_counter() - started) * 1000.0)
+    elif status == 429:
+        result.status_429 += 1
+    elif status >= 500:
+        result.status_5xx += 1
+        result.error_samples.append(f"HTTP {status}: {response.text[:200]}")
+    else:
+        result.status_4xx += 1
+        result.error_samples.append(f"HTTP {status}: {response.text[:200]}")
+    return response
+
+
 async def _client_loop(client: httpx.AsyncClient, url: str, result: PhaseResult, deadline: float,
                        budget: list[int], rng: random.Random, body_args: tuple[float, int, str],
                        backoff_on_429: bool, headers: dict[str, str]) -> None:
     """One simulated user: request, record, repeat until the deadline or the shared request budget is spent."""
     while time.monotonic() < deadline and budget[0] > 0:
         budget[0] -= 1
-        started = time.perf_counter()
-        try:
-            response = await client.post(f"{url}/generate", json=request_body(rng, *body_args), headers=headers)
-            await response.aread()
-        except httpx.HTTPError as error:
-            result.connection_errors += 1
-            result.error_samples.append(f"{type(error).__name__}: {error}")
-            await asyncio.sleep(0.1)
-            continue
-        elapsed_ms = (time.perf_counter() - started) * 1000.0
-        status = response.status_code
-        if 200 <= status < 300:
-            result.status_2xx += 1
-            result.latencies_ms.append(elapsed_ms)
-        elif status == 429:
-            result.status_429 += 1
+        response = await post_and_record(client, url, request_body(rng, *body_args), result, headers)
+        if response is not None and response.status_code == 429:
             retry_after = float(response.headers.get("Retry-After", "1") or 1)
             await asyncio.sleep(min(retry_after, 5.0) if backoff_on_429 else 0.05)
-        elif status >= 500:
-            result.status_5xx += 1
-            result.error_samples.append(f"HTTP {status}: {response.text[:200]}")
-        else:
-            result.status_4xx += 1
-            result.error_samples.append(f"HTTP {status}: {response.text[:200]}")
 
 
 async def run_phase(url: str, name: str, clients: int, seconds: float, *, segment_seconds: float = 3.0,
