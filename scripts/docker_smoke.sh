@@ -76,8 +76,12 @@ started=$SECONDS
 docker stop -t 75 "$name" > /dev/null
 exit_code="$(docker inspect -f '{{.State.ExitCode}}' "$name")"
 # uvicorn re-raises the SIGTERM it handled once it has shut down: 0 as PID 1 (the kernel ignores it), else 143
-case "$exit_code" in 0|143) ;; *) docker logs "$name" 2>&1 | tail -20; fail "docker stop: exit code $exit_code" ;; esac
-docker logs "$name" 2>&1 | grep -q "Application shutdown complete" || fail "docker stop: no graceful shutdown in the log"
+# The log is read whole before it is searched: `docker logs | grep -q` under pipefail fails at random (grep exits
+# at the first match, docker logs dies of SIGPIPE while it still writes, and the pipeline reports that failure).
+container_log="$(docker logs "$name" 2>&1)"
+case "$exit_code" in 0|143) ;; *) tail -20 <<<"$container_log"; fail "docker stop: exit code $exit_code" ;; esac
+grep -q "Application shutdown complete" <<<"$container_log" \
+  || { tail -20 <<<"$container_log"; fail "docker stop: no graceful shutdown in the log"; }
 
 echo
 echo "image $image: $((size_bytes / 1000000)) MB (base $base, WHEELHOUSE=$wheelhouse, build ${build_s} s)"
