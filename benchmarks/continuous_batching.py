@@ -10,7 +10,7 @@ Both servers get a warm-up request first; latencies of all rounds are pooled per
 (CPU, cores, load average before and after) is printed with the tables, so a run on a shared machine says so.
 Loopback only; bounded like load_test.py.
 
-    python benchmarks/continuous_batching.py --model t2m/bundles/default --seconds 30 --rounds 2
+    python benchmarks/continuous_batching.py --model t2m/bundles/gpt --seconds 30 --rounds 2
 """
 from __future__ import annotations
 
@@ -127,7 +127,7 @@ def format_tables(pooled: dict[tuple[str, str, str], PhaseResult]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--model", default="t2m/bundles/default", help="bundle served by both servers")
+    parser.add_argument("--model", default="t2m/bundles/gpt", help="bundle served by both servers")
     parser.add_argument("--seconds", type=float, default=30.0, help="length of each phase")
     parser.add_argument("--rounds", type=int, default=2, help="each workload against each server this many times")
     parser.add_argument("--workloads", default=",".join(WORKLOADS))

@@ -7,7 +7,7 @@ code sequences are identical, the mean first position where they part, and the l
 agree. Table 1 and the probes of the copy are separate commands (`t2m eval --bundle OUT`, `benchmarks/probes.py
 --bundle OUT`; benchmarks/README.md).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/int8_default_quality.py --bundle t2m/bundles/default
+    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/int8_default_quality.py --bundle t2m/bundles/gpt
         --out tmp/default-int8 [--conditions 20]
 """
 from __future__ import annotations

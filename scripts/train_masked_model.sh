@@ -7,7 +7,7 @@
 # repository root in the training environment; every stage writes progress, train.log, log.csv and curves.png in
 # its run directory and can be continued with --resume.
 set -euo pipefail
-DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_default_model.sh, first command)
+DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_gpt_model.sh, first command)
 RUNS="${RUNS:-runs}"
 TEXT="$RUNS/text_minilm.npz"          # the GPT's caption cache: shared, computed once (~1 min)
 
@@ -54,12 +54,12 @@ t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" -
   --lr-milestones 0.85 --cond-drop 0.2 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
   --codes-cache "$RUNS/masked" --log-every 25 --val-every 200 --save-every 100 --threads 1 --seed 0 --resume
 
-# The evaluator of the default GPT's table (scripts/train_default_model.sh; deterministic, 0.6 min), if missing.
+# The evaluator of the default GPT's table (scripts/train_gpt_model.sh; deterministic, 0.6 min), if missing.
 [ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
   --text-cache "$TEXT" --steps 600 --threads 2
 
 # 5. Evaluation (issue 14 item 3): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
-#    GPT's table (scripts/train_default_model.sh; its evaluator run is needed here), so the two tables compare.
+#    GPT's table (scripts/train_gpt_model.sh; its evaluator run is needed here), so the two tables compare.
 #    Generation runs the service's loop (t2m.decoding.masked): 10 re-masking steps, masked-stage guidance 4 (the
 #    bundle's default; guidance 1 was left out to fit the session), residual stage guidance 5 (MoMask's), top-k 26 on
 #    both stages (MoMask's and MoGenTS's eval recipe: 10% of the codebook; 0.1.0 sampled from every code); --length

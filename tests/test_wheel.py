@@ -66,7 +66,7 @@ def test_wheel_holds_one_package_the_viewer_and_the_default_model(installed):
     wheel = installed[2]
     names = zipfile.ZipFile(wheel).namelist()
     assert {name.split("/")[0] for name in names} == {"t2m", wheel.name.split("-py3")[0] + ".dist-info"}
-    for bundle in ("default", "masked"):
+    for bundle in ("default", "gpt", "masked"):
         manifest = json.loads((REPO / "t2m" / "bundles" / bundle / "manifest.json").read_text())
         assert {f"t2m/bundles/{bundle}/{name}" for name in [*manifest["files"], "manifest.json"]} <= set(names)
     assert "t2m/service/static/index.html" in names
@@ -89,7 +89,7 @@ def test_generate_from_anywhere_with_the_embedded_model(installed):
     _run(bin_dir / "t2m", "generate", "a person walks forward", "--duration", "2", "--seed", "3", "-o", out,
          cwd=elsewhere)
     motion = json.loads(out.read_text())
-    assert len(motion["frames"]) == 40 and motion["model"]["name"] == "t2m-bandai-minilm"
+    assert len(motion["frames"]) == 40 and motion["model"]["name"] == "t2m-bandai-hifigpt-minilm"
 
 
 def test_serve_from_anywhere_with_the_embedded_model(installed):
@@ -102,7 +102,7 @@ def test_serve_from_anywhere_with_the_embedded_model(installed):
                               env=_clean_env())
     try:
         health = _wait_ready(f"http://127.0.0.1:{port}/health", server)
-        assert health["model"]["name"] == "t2m-bandai-minilm" and health["service_version"] == t2m.__version__
+        assert health["model"]["name"] == "t2m-bandai-hifigpt-minilm" and health["service_version"] == t2m.__version__
         request = urllib.request.Request(
             f"http://127.0.0.1:{port}/generate", method="POST", headers={"content-type": "application/json"},
             data=json.dumps({"segments": [{"text": "a person waves with the right hand", "duration": 2.0}],

@@ -1,13 +1,16 @@
-"""The bundles shipped inside the package (data only): `default/` is the model `t2m serve` uses when none is named;
-every embedded bundle can be named by its folder name wherever a bundle directory is asked for (`--model masked`)."""
+"""The bundles shipped inside the package (data only): `default/` is the model `t2m serve` uses when none is named
+(T2M-HiFiGPT after 0.4.0), `gpt/` the 1-layer T2M-GPT model that was the default before, `masked/` the masked
+family's; every embedded bundle can be named by its folder name wherever a bundle directory is asked for
+(`--model gpt`)."""
 from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["DEFAULT_BUNDLE", "EMBEDDED_BUNDLES", "resolve_bundle"]
+__all__ = ["DEFAULT_BUNDLE", "EMBEDDED_BUNDLES", "GPT_BUNDLE", "resolve_bundle"]
 
 _HERE = Path(__file__).resolve().parent
 DEFAULT_BUNDLE = _HERE / "default"
+GPT_BUNDLE = _HERE / "gpt"          # the embedded model of the GPT family (t2m bench sizes its GPT after it)
 EMBEDDED_BUNDLES: dict[str, Path] = {path.name: path for path in sorted(_HERE.iterdir())
                                      if (path / "manifest.json").is_file()}
 

@@ -8,8 +8,9 @@ Finished rows leave the cache so that a long segment does not make the short one
 request's own numpy Generator, one uniform per active segment per step, segments in request order. A job's
 `progress` sees its codes after every step (the service streams frames from them).
 
-A `GptCohort` is one such batch: `sample_codes` runs one to its end; the service's continuous batching steps several
-cohorts that started at different step boundaries side by side, each reporting a job the moment it is finished.
+A `GptCohort` (a lockstep.Cohort) is one such batch: `sample_codes` runs one to its end; the service's continuous
+batching steps several cohorts that started at different step boundaries side by side, each reporting a job the
+moment it is finished.
 
 `GptStep` is what the loop needs from a network: the service wraps gpt_step.onnx, the PyTorch reference wraps
 MotionGPT.forward_step; both take and return numpy arrays.
@@ -23,17 +24,15 @@ import numpy as np
 
 from t2m.decoding.lockstep import (
     Batch,
+    Cohort,
     Rows,
     SamplingJob,
     Segment,
-    check_targets,
     drop_finished,
     guided,
     live_segments,
     report_progress,
-    results,
     row_maps,
-    start,
 )
 from t2m.decoding.tokens import sample_tokens
 
@@ -68,32 +67,12 @@ def _advance(segment: Segment, token: int, end_id: int, max_tokens: int) -> None
     segment.reached(max_tokens)
 
 
-class GptCohort:
-    """Jobs that start at one step boundary and step together until each is done.
-
-    The step graph takes one `position` for all its rows and a past of one length, so rows can share a call only if
-    they started together: a cohort is such a group. Rows leave as their segments finish; a job is reported by
-    `finished` as soon as all its segments are done (or it was cancelled), not when the whole cohort is. Continuous
-    batching (t2m.service) runs several cohorts of different ages side by side, one call each per step boundary;
-    `sample_codes` runs one cohort to its end.
-    """
+class GptCohort(Cohort):
+    """GPT jobs stepping together from one step boundary (lockstep.Cohort): one gpt_step call per time step."""
 
     def __init__(self, step: GptStep, jobs: Sequence[SamplingJob], max_tokens: int, end_id: int) -> None:
-        check_targets(jobs, max_tokens)
-        self.step, self.jobs, self.max_tokens, self.end_id = step, jobs, max_tokens, end_id
-        self.batch = start(jobs, step.empty_cache)
-        self.cancelled = [False] * len(jobs)
-        self.position = 0                      # the next step's position: steps taken so far
-        self._reported = [False] * len(jobs)
-
-    @property
-    def rows(self) -> int:
-        """Rows (segments x cond/null) still stepping."""
-        return len(self.batch.owner)
-
-    @property
-    def done(self) -> bool:
-        return not len(self.batch.owner)
+        super().__init__(jobs, max_tokens, step.empty_cache)
+        self.step, self.end_id = step, end_id
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> None:
         """One network call for every live row, then one token for each of their segments."""
@@ -110,23 +89,9 @@ class GptCohort:
         drop_finished(batch)
         self.position += 1
 
-    def finished(self) -> list[tuple[int, list[np.ndarray] | None]]:
-        """Jobs finished since the last call, in job order: (index, its segments' codes, or None if cancelled)."""
-        out = []
-        for j, indices in enumerate(self.batch.of_job):
-            if self._reported[j] or not all(self.batch.segments[s].done for s in indices):
-                continue
-            self._reported[j] = True
-            out.append((j, None if self.cancelled[j] else
-                        [np.asarray(self.batch.segments[s].tokens, dtype=np.int64) for s in indices]))
-        return out
-
 
 def sample_codes(step: GptStep, jobs: Sequence[SamplingJob], max_tokens: int, end_id: int,
                  on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
     """Generate the codes of every segment of every job; per job a list of int64 code arrays (one per segment, in
     order), or None for a job cancelled on the way. `on_step(rows)` is called after each network call."""
-    cohort = GptCohort(step, jobs, max_tokens, end_id)
-    while not cohort.done:
-        cohort.advance(on_step)
-    return results(cohort.batch, cohort.cancelled)
+    return GptCohort(step, jobs, max_tokens, end_id).run(on_step)

@@ -12,8 +12,9 @@ fed the guided choices, as in the GPT family.
 Per request and position the random draws are: one uniform per free segment with a step (stop), then per depth one
 uniform per going segment, segments in request order; so a request's codes depend only on its own generator. A
 job's `progress` sees its segments' code rows after every position (the service streams frames from them).
-`TemporalStep` and `ResidualGptStep` are what the loop needs from the networks: the service wraps
-temporal_step.onnx / residual_step.onnx, the PyTorch reference wraps HiFiGPT's step methods.
+A `HiFiGPTCohort` (a lockstep.Cohort) is one such batch; the service's continuous batching steps several side by
+side, as for the GPT family. `TemporalStep` and `ResidualGptStep` are what the loop needs from the networks: the
+service wraps temporal_step.onnx / residual_step.onnx, the PyTorch reference wraps HiFiGPT's step methods.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from t2m.decoding import lockstep
 from t2m.decoding.lockstep import SamplingJob
 from t2m.decoding.tokens import draw_stops, draw_tokens
 
-__all__ = ["ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
+__all__ = ["HiFiGPTCohort", "ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
 
 
 class TemporalStep(Protocol):
@@ -54,23 +55,25 @@ class ResidualGptStep(Protocol):
         ...
 
 
-def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Sequence[SamplingJob],
-                     max_tokens: int, on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
-    """Per job, one int64 code map [steps, R] per segment (in order), or None for a job cancelled on the way.
-    `on_step(rows)` is called after each network call."""
-    lockstep.check_targets(jobs, max_tokens)
-    depth = temporal.depth
-    batch = lockstep.start(jobs, temporal.empty_cache)
-    cancelled = [False] * len(jobs)
-    position = 0
-    while len(batch.owner):
+class HiFiGPTCohort(lockstep.Cohort):
+    """T2M-HiFiGPT jobs stepping together from one step boundary (lockstep.Cohort): per time step one temporal call,
+    then the residual GPT's R depth calls for the segments that go on."""
+
+    def __init__(self, temporal: TemporalStep, residual: ResidualGptStep, jobs: Sequence[SamplingJob],
+                 max_tokens: int) -> None:
+        super().__init__(jobs, max_tokens, temporal.empty_cache)
+        self.temporal, self.residual, self.depth = temporal, residual, temporal.depth
+
+    def advance(self, on_step: Callable[[int], None] | None = None) -> None:
+        """The stop decisions of this position, then the code rows of the segments that go on."""
+        batch, depth = self.batch, self.depth
         codes_in = np.stack([(batch.segments[s].tokens or [np.zeros(depth, np.int64)])[-1] for s in batch.owner])
-        context, stop, batch.past = temporal(batch.cond, codes_in, position, batch.length, batch.past)
+        context, stop, batch.past = self.temporal(batch.cond, codes_in, self.position, batch.length, batch.past)
         if on_step is not None:
             on_step(len(batch.owner))
         rows = lockstep.row_maps(batch.owner)
         live = []
-        for job, active in lockstep.live_segments(batch, jobs, cancelled):
+        for job, active in lockstep.live_segments(batch, self.jobs, self.cancelled):
             free = [s for s in active if batch.segments[s].target is None and batch.segments[s].tokens]
             if free:
                 guided = lockstep.guided(job, free, stop[:, None], rows)[:, 0]
@@ -81,14 +84,20 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
         context = context[lockstep.drop_finished(batch)]
         if len(batch.owner):
             going = [(job, kept) for job, active in live if (kept := [s for s in active if not batch.segments[s].done])]
-            for s, row in depth_loop(residual, context, going, batch.owner, depth, on_step).items():
+            for s, row in depth_loop(self.residual, context, going, batch.owner, depth, on_step).items():
                 batch.segments[s].tokens.append(row)
-                batch.segments[s].reached(max_tokens)
+                batch.segments[s].reached(self.max_tokens)
             lockstep.drop_finished(batch)
         for job, active in live:
             lockstep.report_progress(batch, job, active)
-        position += 1
-    return lockstep.results(batch, cancelled)
+        self.position += 1
+
+
+def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Sequence[SamplingJob],
+                     max_tokens: int, on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
+    """Per job, one int64 code map [steps, R] per segment (in order), or None for a job cancelled on the way.
+    `on_step(rows)` is called after each network call."""
+    return HiFiGPTCohort(temporal, residual, jobs, max_tokens).run(on_step)
 
 
 def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple[SamplingJob, list[int]]],

@@ -18,8 +18,8 @@ import numpy as np
 
 from t2m.decoding.tokens import guided_logits
 
-__all__ = ["Batch", "Rows", "SamplingJob", "Segment", "check_targets", "drop_finished", "guided", "live_segments",
-           "report_progress", "results", "row_maps", "start"]
+__all__ = ["Batch", "Cohort", "Rows", "SamplingJob", "Segment", "check_targets", "drop_finished", "guided",
+           "live_segments", "report_progress", "results", "row_maps", "start"]
 
 
 @dataclass
@@ -154,3 +154,53 @@ def results(batch: Batch, cancelled: Sequence[bool]) -> list[list[np.ndarray] | 
     """Per job its segments' int64 arrays (one entry per step), or None for a cancelled job."""
     return [None if cancelled[j] else [np.asarray(batch.segments[s].tokens, dtype=np.int64) for s in indices]
             for j, indices in enumerate(batch.of_job)]
+
+
+class Cohort:
+    """Jobs that start at one step boundary and step together until each is done (a family's loop: `advance`).
+
+    The step graphs take one `position` for all their rows and a past of one length, so rows share a call only if
+    they started together: a cohort is such a group. Rows leave as their segments finish; a job is reported by
+    `finished` as soon as all its segments are done (or it was cancelled), not when the whole cohort is. Continuous
+    batching (t2m.service) runs several cohorts of different ages side by side, one call each per step boundary; a
+    family's `sample_*` function runs one cohort to its end.
+    """
+
+    def __init__(self, jobs: Sequence[SamplingJob], max_tokens: int,
+                 empty_cache: Callable[[int], np.ndarray]) -> None:
+        check_targets(jobs, max_tokens)
+        self.jobs, self.max_tokens = jobs, max_tokens
+        self.batch = start(jobs, empty_cache)
+        self.cancelled = [False] * len(jobs)
+        self.position = 0                      # the next step's position: steps taken so far
+        self._reported = [False] * len(jobs)
+
+    @property
+    def rows(self) -> int:
+        """Rows (segments x cond/null) still stepping."""
+        return len(self.batch.owner)
+
+    @property
+    def done(self) -> bool:
+        return not len(self.batch.owner)
+
+    def advance(self, on_step: Callable[[int], None] | None = None) -> None:
+        """One time step for every live row (the family's network calls); `on_step(rows)` after each call."""
+        raise NotImplementedError
+
+    def run(self, on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
+        """Step to the end; per job its segments' arrays, or None for a job cancelled on the way."""
+        while not self.done:
+            self.advance(on_step)
+        return results(self.batch, self.cancelled)
+
+    def finished(self) -> list[tuple[int, list[np.ndarray] | None]]:
+        """Jobs finished since the last call, in job order: (index, its segments' arrays, or None if cancelled)."""
+        out = []
+        for j, indices in enumerate(self.batch.of_job):
+            if self._reported[j] or not all(self.batch.segments[s].done for s in indices):
+                continue
+            self._reported[j] = True
+            out.append((j, None if self.cancelled[j] else
+                        [np.asarray(self.batch.segments[s].tokens, dtype=np.int64) for s in indices]))
+        return out

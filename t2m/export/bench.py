@@ -8,7 +8,7 @@ random weights:
 - "PyTorch eager + KV cache": MotionGPT.forward_step (separates the cache's gain from onnxruntime's);
 - "PyTorch eager, prefix recomputed": MotionGPT.forward on the whole prefix at every step (T2M-GPT's sampler).
 
-Sizes: our default model (read from t2m/bundles/default/manifest.json when present, else the default
+Sizes: our embedded GPT-family model (read from t2m/bundles/gpt/manifest.json when present, else the default
 GPTConfig/VQConfig) and the T2M-GPT release (1024 embed, 9+9 layers, 16 heads; 228M parameters).
 The text encoder is not timed (it runs once per request, not per token).
 """
@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from t2m.bundles import DEFAULT_BUNDLE
+from t2m.bundles import GPT_BUNDLE
 from t2m.export.machine import describe_machine
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
-DEFAULT_MANIFEST = DEFAULT_BUNDLE / "manifest.json"
+DEFAULT_MANIFEST = GPT_BUNDLE / "manifest.json"
 RELEASE_GPT = GPTConfig(codebook_size=512, embed=1024, n_head=16, n_layer_base=9, n_layer_head=9, block_size=51,
                         dropout=0.0, text_dim=512, length_conditioning=False)
 RELEASE_VQ = VQConfig(width=512, code_dim=512, nb_code=512)
@@ -63,7 +63,7 @@ class BenchRow:
 
 
 def default_sizes() -> tuple[GPTConfig, VQConfig, str]:
-    """The default bundle's GPT sizes when t2m/bundles/default has one, else defaults.
+    """The embedded GPT bundle's sizes (t2m/bundles/gpt: the 1-layer GPT these timings are about), else defaults.
 
     VQ sizes are not in a manifest: the VQ gets VQConfig's defaults (with the bundle's codebook size)."""
     if DEFAULT_MANIFEST.is_file():
@@ -74,8 +74,8 @@ def default_sizes() -> tuple[GPTConfig, VQConfig, str]:
                         n_layer_base=n_layer - n_layer // 2, n_layer_head=n_layer // 2, block_size=g["block_size"],
                         dropout=0.0, text_dim=manifest["text_encoder"]["dim"],
                         length_conditioning=g["length_conditioning"])
-        return gpt, VQConfig(nb_code=manifest["codebook_size"]), f"t2m/bundles/default ({manifest['name']})"
-    return GPTConfig(dropout=0.0), VQConfig(), "default GPTConfig (no t2m/bundles/default/manifest.json)"
+        return gpt, VQConfig(nb_code=manifest["codebook_size"]), f"t2m/bundles/gpt ({manifest['name']})"
+    return GPTConfig(dropout=0.0), VQConfig(), "default GPTConfig (no t2m/bundles/gpt/manifest.json)"
 
 
 def median_ms(fn: Callable[[], object], repeats: int) -> float:

@@ -76,7 +76,7 @@ class QueuedWorkers:
 
     @property
     def in_flight(self) -> int:
-        """Requests a worker is generating right now."""
+        """Requests a worker holds: gathered into its batch (within the batch window) or being generated."""
         return self._in_flight
 
     def submit_nowait(self, request: GenerationRequest) -> Future:
@@ -140,18 +140,21 @@ class MicroBatcher(QueuedWorkers):
             if self._closed:
                 return None
             batch = [self._queue.popleft()]
+            # a job gathered into a batch counts as in flight at once: during the window it is in no queue, and a
+            # replica that holds requests must never look idle on /metrics (autoscaling, drain checks)
+            self._in_flight += 1
             rows = rows_of(batch[0].request)
             deadline = time.perf_counter() + self.window_s
             while True:
                 while self._queue and rows + rows_of(self._queue[0].request) <= self.max_batch_rows:
                     job = self._queue.popleft()
                     batch.append(job)
+                    self._in_flight += 1
                     rows += rows_of(job.request)
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0 or self._queue or rows >= self.max_batch_rows:
                     break
                 self._cond.wait(remaining)
-            self._in_flight += len(batch)
             return batch
 
     def _work(self) -> None:

@@ -4,9 +4,8 @@ The worker keeps one continuous session of its engine (t2m.service.engine.contin
 the queued requests whose rows fit beside the running ones (`max_batch_rows` counts all rows stepping), then steps
 everything once; a request is answered the step its codes are done, so a short request is not held until the long
 ones it shares the worker with are finished. A request waits up to `window_s` before joining, so that requests
-arriving together start together (one cohort, one graph call per step, t2m.decoding.gpt.GptCohort). Engines without
-a continuous session (the masked and T2M-HiFiGPT families, test stand-ins) are served by MicroBatcher instead
-(`batcher_for`).
+arriving together start together (one cohort, one graph call per step, t2m.decoding.lockstep.Cohort). Engines
+without a continuous session (the masked family, test stand-ins) are served by MicroBatcher instead (`batcher_for`).
 """
 from __future__ import annotations
 
@@ -24,7 +23,7 @@ log = logging.getLogger(__name__)
 
 
 class ContinuousSession(Protocol):
-    """An engine's running work (t2m.service.engine.continuous.ContinuousGpt)."""
+    """An engine's running work (t2m.service.engine.continuous.ContinuousCohorts)."""
 
     steps: int
     joins_mid_run: int

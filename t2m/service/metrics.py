@@ -36,7 +36,8 @@ class ServiceMetrics:
                                 registry=self.registry)
         self.queue_depth = Gauge("t2m_queue_depth", "Requests waiting for an engine worker, by model", ["model"],
                                  registry=self.registry)
-        self.in_flight = Gauge("t2m_in_flight", "Requests being generated now, by model", ["model"],
+        self.in_flight = Gauge("t2m_in_flight", "Requests a worker holds (in its batch window or generating), by model",
+                               ["model"],
                                registry=self.registry)
         self.first_frame = Histogram("t2m_time_to_first_frame_seconds",
                                      "Streamed requests: seconds from the request to its first frames, by model",

@@ -93,8 +93,8 @@ def test_the_1d_residual_variant_decodes_one_column_maps(tmp_path):
     assert features.shape == (1, 12, 263)
 
 
-def test_the_default_gpt_bundle_still_verifies():
-    manifest = verify_bundle(Path(__file__).resolve().parents[2] / "t2m" / "bundles" / "default")
+def test_the_embedded_gpt_bundle_still_verifies():
+    manifest = verify_bundle(Path(__file__).resolve().parents[2] / "t2m" / "bundles" / "gpt")
     assert manifest.get("family", "gpt") == "gpt"
 
 

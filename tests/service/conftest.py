@@ -15,7 +15,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))   # tests/service/fakes.py
 
 REPO = Path(__file__).resolve().parents[2]
-DEFAULT_MODEL = REPO / "t2m" / "bundles" / "default"
+DEFAULT_MODEL = REPO / "t2m" / "bundles" / "default"      # T2M-HiFiGPT after 0.4.0
+GPT_MODEL = REPO / "t2m" / "bundles" / "gpt"              # the 1-layer GPT, the default up to 0.4.0
 
 
 @pytest.fixture(scope="session")
@@ -100,6 +101,15 @@ def default_model() -> Path:
     if not (DEFAULT_MODEL / "manifest.json").is_file():
         pytest.skip(f"the real default model is not committed yet ({DEFAULT_MODEL / 'manifest.json'} is absent)")
     return DEFAULT_MODEL
+
+
+@pytest.fixture(scope="session")
+def gpt_model() -> Path:
+    """The embedded GPT-family model: tests of what only that family does (its recorded outputs, continuous batching
+    of its KV-cached step graph) use it whatever the default is."""
+    if not (GPT_MODEL / "manifest.json").is_file():
+        pytest.skip(f"the embedded GPT model is not committed ({GPT_MODEL / 'manifest.json'} is absent)")
+    return GPT_MODEL
 
 
 def wait_ready(client, timeout_s: float = 20.0) -> None:

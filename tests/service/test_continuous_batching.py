@@ -1,6 +1,6 @@
-"""Continuous batching on the tiny random GPT bundle: a request that joins a running batch mid-run, or leaves it
-early, gets exactly the motion it gets alone (same seed, same codes, same frames); joins and early leaves are
-checked to have happened, by step counts, never by timing."""
+"""Continuous batching on the tiny random GPT and T2M-HiFiGPT bundles: a request that joins a running batch mid-run,
+or leaves it early, gets exactly the motion it gets alone (same seed, same codes, same frames); joins and early
+leaves are checked to have happened, by step counts, never by timing."""
 from __future__ import annotations
 
 import threading
@@ -15,8 +15,16 @@ from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Mot
 from tests.service.fakes import FakeEngine
 
 
+@pytest.fixture(scope="module", params=["gpt", "hifigpt"])
+def engine(request, onnx_engine, hifigpt_bundle):
+    """Each autoregressive family's engine (the GPT: 4 frames per step; T2M-HiFiGPT: 8, three code depths)."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    return onnx_engine if request.param == "gpt" else OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
+
+
 def _long(seed: int = 3) -> GenerationRequest:
-    """50 tokens with the guidance pair: 51 steps."""
+    """50 tokens with the guidance pair: 51 steps (T2M-HiFiGPT: 25 steps)."""
     return GenerationRequest(segments=[SegmentRequest("a person walks forward", 10.0)], seed=seed, guidance=3.0)
 
 
@@ -29,7 +37,7 @@ def _stream(seed: int = 11) -> GenerationRequest:
 
 
 def _short(seed: int = 21) -> GenerationRequest:
-    """Two fixed segments (10 + 5 tokens, stepped side by side): done 11 steps after it starts."""
+    """Two fixed segments (10 + 5 tokens, stepped side by side): done 11 steps after it starts (T2M-HiFiGPT: 6)."""
     return GenerationRequest(segments=[SegmentRequest("a person turns around", 2.0),
                                        SegmentRequest("a person sits down", 1.0)], seed=seed, guidance=3.0)
 
@@ -46,11 +54,11 @@ def _same_motion(got: Motion | BaseException, want: Motion) -> bool:
             and np.array_equal(got.joints, want.joints))
 
 
-def test_a_request_joining_mid_run_gets_the_motion_it_gets_alone(onnx_engine):
+def test_a_request_joining_mid_run_gets_the_motion_it_gets_alone(engine):
     long, short, stream = _long(), _short(), _stream()
-    alone = {"long": onnx_engine.generate(_long()), "short": onnx_engine.generate(_short()),
-             "stream": onnx_engine.generate(_stream())}
-    session = onnx_engine.continuous()
+    alone = {"long": engine.generate(_long()), "short": engine.generate(_short()),
+             "stream": engine.generate(_stream())}
+    session = engine.continuous()
     assert session.admit([long]) == []
     for _ in range(5):
         assert session.advance() == []
@@ -66,9 +74,9 @@ def test_a_request_joining_mid_run_gets_the_motion_it_gets_alone(onnx_engine):
         assert _same_motion(results[id(request)], alone[name]), name
 
 
-def test_requests_starting_together_share_one_cohort_and_match_a_whole_batch(onnx_engine):
-    batch = onnx_engine.generate_batch([_long(), _stream(), _stream(seed=12)])
-    session = onnx_engine.continuous()
+def test_requests_starting_together_share_one_cohort_and_match_a_whole_batch(engine):
+    batch = engine.generate_batch([_long(), _stream(), _stream(seed=12)])
+    session = engine.continuous()
     requests = [_long(), _stream(), _stream(seed=12)]
     session.admit(requests)
     assert len(session.running) == 1 and session.joins_mid_run == 0
@@ -77,9 +85,9 @@ def test_requests_starting_together_share_one_cohort_and_match_a_whole_batch(onn
         assert isinstance(want, Motion) and _same_motion(results[id(request)], want)
 
 
-def test_a_cancelled_request_leaves_without_changing_the_others(onnx_engine):
-    alone = onnx_engine.generate(_stream())
-    session = onnx_engine.continuous()
+def test_a_cancelled_request_leaves_without_changing_the_others(engine):
+    alone = engine.generate(_stream())
+    session = engine.continuous()
     long, stream = _long(), _stream()
     session.admit([long])
     session.advance()
@@ -92,17 +100,17 @@ def test_a_cancelled_request_leaves_without_changing_the_others(onnx_engine):
     assert _same_motion(results[id(stream)], alone)
 
 
-def test_a_failing_request_is_answered_at_admission(onnx_engine):
-    session = onnx_engine.continuous()
+def test_a_failing_request_is_answered_at_admission(engine):
+    session = engine.continuous()
     bad = GenerationRequest(segments=[SegmentRequest("a person walks", 10.0)], seed=1, top_k=10_000)
     ((request, error),) = session.admit([bad])
     assert request is bad and "top_k" in str(error) and session.idle
 
 
-def test_the_batcher_lets_a_request_join_a_running_batch(onnx_engine):
+def test_the_batcher_lets_a_request_join_a_running_batch(engine):
     """Through the service's worker thread: the second request is submitted from the worker itself after step 5 of
     the first, so it can only join mid-run; it must finish first and match its motion alone."""
-    alone_long, alone_short = onnx_engine.generate(_long()), onnx_engine.generate(_short())
+    alone_long, alone_short = engine.generate(_long()), engine.generate(_short())
     order: list[str] = []
     futures: dict[str, Future] = {}
     submitted = threading.Event()
@@ -113,7 +121,7 @@ def test_the_batcher_lets_a_request_join_a_running_batch(onnx_engine):
             futures["short"] = batcher.submit_nowait(_short())
             futures["short"].add_done_callback(lambda _: order.append("short"))
 
-    batcher = ContinuousBatcher(onnx_engine, window_s=0.0, on_step=on_step)
+    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step)
     try:
         futures["long"] = batcher.submit_nowait(_long())
         futures["long"].add_done_callback(lambda _: order.append("long"))
@@ -136,3 +144,16 @@ def test_continuous_batching_is_a_setting_and_only_for_engines_that_can(onnx_eng
             batcher.close()
     with pytest.raises(TypeError):
         ContinuousBatcher(FakeEngine())
+
+
+def test_the_masked_family_keeps_run_to_completion_batches(masked_bundle):
+    """Not autoregressive (a few whole-map passes): nothing to join between steps, so no continuous session."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    masked = OnnxEngine.load(masked_bundle, intra_op_threads=1)
+    assert masked.continuous() is None
+    batcher = batcher_for(masked, continuous=True, max_queue=4, max_batch_rows=64, window_s=0.0, workers=1)
+    try:
+        assert type(batcher) is MicroBatcher
+    finally:
+        batcher.close()

@@ -1,4 +1,4 @@
-"""The committed second and third models (t2m/bundles/masked, t2m/bundles/hifigpt) served beside the default, as
+"""The committed second and third models (t2m/bundles/gpt, t2m/bundles/masked) served beside the default, as
 scripts/serve.sh serves them: picked by the request's `model`, a 3-sentence stream in every format, the default
 answering requests without `model`, and the shared text files of the embedded bundles."""
 from __future__ import annotations
@@ -9,10 +9,11 @@ import pytest
 from t2m.bundles import DEFAULT_BUNDLE, EMBEDDED_BUNDLES
 from t2m.service.settings import Settings
 
-DEFAULT = "t2m-bandai-minilm"
-MODELS = {"masked": "t2m-bandai-masked-minilm", "hifigpt": "t2m-bandai-hifigpt-minilm"}
-# segment frames: duration x 20 fps rounded to the model's frames per code row (masked 4, hifigpt 8: 3 s -> 64)
-SPANS = {"t2m-bandai-masked-minilm": [(0, 60), (60, 100), (100, 140)],
+DEFAULT = "t2m-bandai-hifigpt-minilm"
+MODELS = {"gpt": "t2m-bandai-minilm", "masked": "t2m-bandai-masked-minilm"}
+# segment frames: duration x 20 fps rounded to the model's frames per code row (gpt and masked 4, hifigpt 8: 3 s -> 64)
+SPANS = {"t2m-bandai-minilm": [(0, 60), (60, 100), (100, 140)],
+         "t2m-bandai-masked-minilm": [(0, 60), (60, 100), (100, 140)],
          "t2m-bandai-hifigpt-minilm": [(0, 64), (64, 104), (104, 144)]}
 STREAM = {"segments": [{"text": "a person walks forward", "duration": 3.0},
                        {"text": "a person waves with the right hand", "duration": 2.0},
@@ -65,6 +66,7 @@ def test_the_file_formats(served, name, fmt, media_type):
 def test_the_default_answers_without_model_and_seeds_repeat(served):
     first = served.post("/generate", json=STREAM).json()
     assert first["model"]["name"] == DEFAULT
+    assert [(s["start_frame"], s["end_frame"]) for s in first["segments"]] == SPANS[DEFAULT]
     for name in MODELS.values():
         again = served.post("/generate", json={**STREAM, "model": name}).json()
         once = served.post("/generate", json={**STREAM, "model": name}).json()

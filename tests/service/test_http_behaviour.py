@@ -209,3 +209,26 @@ def test_model_failure_is_500_not_422(make_client):
                          raise_server_exceptions=False)
     response = client.post("/generate", json=BODY)
     assert response.status_code == 500 and response.json() == {"detail": "internal server error"}
+
+
+def test_a_request_in_its_batch_window_counts_as_in_flight():
+    """A request a worker has taken but not yet started (its batch window is open) is in no queue: the in-flight
+    gauge must hold it, or a busy replica reads idle on /metrics (found by the deploy suite's drain test)."""
+    from t2m.service.batching import MicroBatcher
+    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+    engine = FakeEngine()
+    batcher = MicroBatcher(engine, window_s=1.0)
+    try:
+        future = batcher.submit_nowait(GenerationRequest([SegmentRequest("a person walks", 1.0)], seed=1))
+        deadline = time.perf_counter() + 5
+        while batcher.queue_depth and time.perf_counter() < deadline:
+            time.sleep(0.01)
+        assert batcher.queue_depth == 0 and not engine.batches        # taken, window still open, not generating
+        assert batcher.in_flight == 1
+        future.result(timeout=10)
+        while batcher.in_flight and time.perf_counter() < deadline + 10:   # released just after the answer
+            time.sleep(0.01)
+        assert batcher.in_flight == 0 and engine.batches == [1]
+    finally:
+        batcher.close()

@@ -11,9 +11,10 @@ from tests.service.conftest import REPO
 
 
 def test_defaults(monkeypatch):
-    for name in ("T2M_MODEL_DIR", "T2M_BUNDLE_PATH", "T2M_API_KEY", "T2M_CORS_ORIGINS"):
+    for name in ("T2M_MODEL_DIR", "T2M_BUNDLE_PATH", "T2M_API_KEY", "T2M_CORS_ORIGINS", "T2M_INTRA_OP_THREADS"):
         monkeypatch.delenv(name, raising=False)
     settings = Settings()
+    assert settings.intra_op_threads == 1     # measured faster than onnxruntime's all-cores choice (docs/service.md)
     assert settings.bundle_path == default_bundle_path() == REPO / "t2m" / "bundles" / "default"
     assert settings.api_key is None and settings.cors_origins == []
     assert settings.max_queue >= 1 and settings.request_timeout_s > 0 and settings.max_body_bytes >= 1024

@@ -54,10 +54,11 @@ def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
 
 
 @pytest.fixture(scope="module")
-def default_engine(default_model):
+def gpt_engine(gpt_model):
+    """The embedded GPT model: its decoder (reach 22 codes, 4 frames each) lets a 10 s motion stream early frames."""
     from t2m.service.engine.engine import OnnxEngine
 
-    return OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
+    return OnnxEngine.load(gpt_model, check_hashes=False, intra_op_threads=1)
 
 
 def _request(segments, seed: int = 3, guidance: float = 3.0, sink=None) -> GenerationRequest:
@@ -74,12 +75,22 @@ def _streamed(engine, segments, seed: int = 3) -> tuple[list[np.ndarray], np.nda
     return chunks, streamed, engine.generate(_request(segments, seed)).joints
 
 
-def test_the_default_decoder_reaches_22_codes_each_way_as_its_graph_says(default_engine, default_model):
+def test_the_gpt_decoder_reaches_22_codes_each_way_as_its_graph_says(gpt_engine, gpt_model):
     """T2M-GPT's decoder: conv3, then per upsampling level dilated residual blocks (9, 3, 1) and x2 nearest, then
     conv3 x2: a frame of code t depends on codes t - 22 .. t + 22."""
-    assert default_engine.reach == graph_reach(default_model / "decoder.onnx") == DecoderReach(ahead=22, behind=22)
-    assert default_engine.limits.details["streaming"] == {"early_frames": True, "lookahead_tokens": 22,
-                                                          "lookbehind_tokens": 22, "every_tokens": 8}
+    assert gpt_engine.reach == graph_reach(gpt_model / "decoder.onnx") == DecoderReach(ahead=22, behind=22)
+    assert gpt_engine.limits.details["streaming"] == {"early_frames": True, "lookahead_tokens": 22,
+                                                      "lookbehind_tokens": 22, "every_tokens": 8}
+
+
+def test_the_default_decoder_reaches_25_steps_each_way_as_its_graph_says(default_model):
+    """T2M-HiFiGPT's decoder (three x2 levels, 8 frames per step) looks 25 steps each way: as many as a 10 s motion
+    has, so a motion of one sentence gets its frames only at the end; longer streams of sentences get early ones."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    engine = OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
+    assert engine.reach == graph_reach(default_model / "decoder.onnx") == DecoderReach(ahead=25, behind=25)
+    assert engine.limits.max_tokens == 25 and engine.limits.details["streaming"]["lookahead_tokens"] == 25
 
 
 def test_the_random_bundle_reach_is_its_graph_bound(onnx_engine, random_bundle):
@@ -87,8 +98,8 @@ def test_the_random_bundle_reach_is_its_graph_bound(onnx_engine, random_bundle):
     assert onnx_engine.reach.ahead < 10   # one residual block per level: a short reach, many early frames
 
 
-def test_frames_of_code_t_are_final_once_codes_up_to_t_plus_ahead_exist(default_engine):
-    decode, ahead, per = default_engine.decoder.decode, default_engine.reach.ahead, 4
+def test_frames_of_code_t_are_final_once_codes_up_to_t_plus_ahead_exist(gpt_engine):
+    decode, ahead, per = gpt_engine.decoder.decode, gpt_engine.reach.ahead, 4
     rng = np.random.default_rng(11)
     codes = rng.integers(0, 512, 70)
     whole = decode(codes)
@@ -112,8 +123,8 @@ def test_frames_of_code_t_are_final_once_codes_up_to_t_plus_ahead_exist(default_
     [("a person walks forward", None), ("a person waves with the right hand", None)],
     [("a person runs", 7.0), ("a person bows", 9.0), ("a person jumps", 2.0)],
 ], ids=["one-10s", "two-free", "three"])
-def test_early_frames_and_the_rest_equal_the_unstreamed_motion(default_engine, segments):
-    chunks, streamed, whole = _streamed(default_engine, segments)
+def test_early_frames_and_the_rest_equal_the_unstreamed_motion(gpt_engine, segments):
+    chunks, streamed, whole = _streamed(gpt_engine, segments)
     assert streamed.shape == whole.shape
     assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
     assert chunks, "nothing was sent before the whole decode"
@@ -121,10 +132,10 @@ def test_early_frames_and_the_rest_equal_the_unstreamed_motion(default_engine, s
     assert all(len(chunk) % 4 == 0 for chunk in chunks)
 
 
-def test_a_10s_motion_sends_its_early_frames_in_doubling_chunks(default_engine):
+def test_a_10s_motion_sends_its_early_frames_in_doubling_chunks(gpt_engine):
     """50 codes, reach 22: codes 0..27 can be final before the end. Sent: the first final code at once, then when at
     least 8 codes and at least as many as sent before are newly final: at 1, 9 and 18 final codes (27 - 18 < 18)."""
-    chunks, _, _ = _streamed(default_engine, [("a person walks forward", 10.0)], seed=5)
+    chunks, _, _ = _streamed(gpt_engine, [("a person walks forward", 10.0)], seed=5)
     assert [len(chunk) for chunk in chunks] == [4, 32, 36]
 
 
@@ -134,12 +145,12 @@ def test_the_random_bundle_streams_equal_frames_too(onnx_engine):
     assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
 
 
-def test_a_streamed_request_gets_the_same_frames_alone_or_batched(default_engine):
+def test_a_streamed_request_gets_the_same_frames_alone_or_batched(gpt_engine):
     segments = [("a person walks forward", 10.0)]
     alone: list[np.ndarray] = []
     batched: list[np.ndarray] = []
-    first = default_engine.generate_batch([_request(segments, 4, sink=alone.append)])[0]
-    results = default_engine.generate_batch([_request([("a person bows", 3.0)], 9),
+    first = gpt_engine.generate_batch([_request(segments, 4, sink=alone.append)])[0]
+    results = gpt_engine.generate_batch([_request([("a person bows", 3.0)], 9),
                                              _request(segments, 4, sink=batched.append),
                                              _request([("a person runs", 8.0), ("a person sits", None)], 2)])
     assert len(alone) == len(batched) > 1
@@ -148,16 +159,16 @@ def test_a_streamed_request_gets_the_same_frames_alone_or_batched(default_engine
     np.testing.assert_array_equal(results[1].joints, first.joints)
 
 
-def test_a_failing_frame_sink_does_not_fail_the_generation(default_engine):
+def test_a_failing_frame_sink_does_not_fail_the_generation(gpt_engine):
     calls = []
 
     def broken(frames: np.ndarray) -> None:
         calls.append(len(frames))
         raise RuntimeError("the client went away")
 
-    motion = default_engine.generate(_request([("a person walks forward", 10.0)], 6, sink=broken))
+    motion = gpt_engine.generate(_request([("a person walks forward", 10.0)], 6, sink=broken))
     assert calls == [4]   # one try, then the early frames stop
-    np.testing.assert_array_equal(motion.joints, default_engine.generate(_request([("a person walks forward", 10.0)],
+    np.testing.assert_array_equal(motion.joints, gpt_engine.generate(_request([("a person walks forward", 10.0)],
                                                                                   6)).joints)
 
 

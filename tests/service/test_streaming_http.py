@@ -51,8 +51,8 @@ def test_a_gpt_stream_equals_the_json_answer(app_client, body):
     assert len(chunks) > 2 and chunks[0] == 4   # early frames, the first code's at once
 
 
-def test_the_default_model_streams_its_json_answer(make_client, default_model):
-    client = make_client(Settings(bundle_path=default_model, intra_op_threads=1, verify_hashes=False))
+def test_the_gpt_model_streams_its_json_answer(make_client, gpt_model):
+    client = make_client(Settings(bundle_path=gpt_model, intra_op_threads=1, verify_hashes=False))
     response = client.post("/generate", json={**WALK, "stream": True})
     assert response.headers["x-seed"] == "4" and response.headers["x-accel-buffering"] == "no"
     chunks = check_stream_equals_answer(messages(response), client.post("/generate", json=WALK).json())

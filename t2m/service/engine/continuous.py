@@ -1,9 +1,11 @@
-"""Continuous batching of the GPT family: requests join the running work at a step boundary and leave when done.
+"""Continuous batching of the autoregressive families (GPT, T2M-HiFiGPT): requests join the running work at a step
+boundary and leave when done.
 
-gpt_step.onnx takes one `position` for all its rows and a key/value past of one length with no attention mask, so
-rows at different positions cannot share a call without changing their logits. What the graph allows exactly: the
-requests admitted at one boundary form a cohort (t2m.decoding.gpt.GptCohort) whose rows step together; cohorts of
-different ages run side by side, one call each per step boundary, oldest first. A request is decoded and returned the
+The step graphs (gpt_step.onnx, temporal_step.onnx) take one `position` for all their rows and a key/value past of
+one length with no attention mask, so rows at different positions cannot share a call without changing their
+logits. What the graphs allow exactly: the requests admitted at one boundary form a cohort (t2m.decoding.lockstep.
+Cohort: GptCohort, HiFiGPTCohort) whose rows step together; cohorts of different ages run side by side, one call
+each (T2M-HiFiGPT: 1 + R) per step boundary, oldest first. A request is decoded and returned the
 step its last segment finishes, whatever is still running beside it. Its codes come from its own seeded generator
 and its own rows' logits, so they are the same alone, in a run-to-completion batch, or joined mid-run.
 """
@@ -15,11 +17,10 @@ from typing import Protocol
 
 import numpy as np
 
-from t2m.decoding.gpt import GptCohort, SamplingJob
-from t2m.service.engine.gpt_codes import GptCodes
+from t2m.decoding.lockstep import Cohort, SamplingJob
 from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion
 
-__all__ = ["ContinuousGpt", "Finished", "PreparedJobs"]
+__all__ = ["CohortSource", "ContinuousCohorts", "Finished", "PreparedJobs"]
 
 Finished = list[tuple[GenerationRequest, Motion | BaseException]]
 """Requests whose answer is ready, each with its Motion or the failure to raise in its place."""
@@ -47,17 +48,23 @@ class _Engine(Protocol):
                warnings: list[str]) -> Motion | BaseException: ...
 
 
+class CohortSource(Protocol):
+    """A family's codes object that can start a cohort (GptCodes, HiFiGPTCodes)."""
+
+    def cohort(self, jobs: Sequence[SamplingJob], max_tokens: int) -> Cohort: ...
+
+
 @dataclass
 class _Running:
-    cohort: GptCohort
+    cohort: Cohort
     requests: list[GenerationRequest]
     notes: list[list[str]]
 
 
-class ContinuousGpt:
-    """One worker's running GPT work: `admit` requests at a step boundary, `advance` every cohort by one step."""
+class ContinuousCohorts:
+    """One worker's running work: `admit` requests at a step boundary, `advance` every cohort by one step."""
 
-    def __init__(self, engine: _Engine, codes: GptCodes) -> None:
+    def __init__(self, engine: _Engine, codes: CohortSource) -> None:
         self.engine, self.codes = engine, codes
         self.running: list[_Running] = []
         self.steps = 0          # step boundaries passed (advance calls)
@@ -65,7 +72,7 @@ class ContinuousGpt:
 
     @property
     def rows(self) -> int:
-        """GPT rows stepping now, over all cohorts (what the batcher's row budget counts)."""
+        """Rows stepping now, over all cohorts (what the batcher's row budget counts)."""
         return sum(running.cohort.rows for running in self.running)
 
     @property
@@ -86,7 +93,7 @@ class ContinuousGpt:
         return failed
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> Finished:
-        """One step of every cohort (one graph call each); the requests that finished in it, decoded."""
+        """One step of every cohort; the requests that finished in it, decoded."""
         done: Finished = []
         for running in self.running:
             running.cohort.advance(on_step)

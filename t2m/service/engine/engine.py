@@ -22,7 +22,7 @@ from t2m.decoding.masked import MaskedJob
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
-from t2m.service.engine.continuous import ContinuousGpt, PreparedJobs
+from t2m.service.engine.continuous import ContinuousCohorts, PreparedJobs
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.gpt_codes import GptCodes
 from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
@@ -90,8 +90,8 @@ class OnnxEngine:
             details={**{key: raw[key] for key in ("license", "text_encoder", "training_data", "quantization")
                         if key in raw}, "unknown_text": self._unknown_text_details(),
                      "streaming": self._streaming_details(),
-                     **({"family": manifest.family, manifest.family: raw[manifest.family]}
-                        if manifest.family != "gpt" else {})})
+                     "family": manifest.family,
+                     **({manifest.family: raw[manifest.family]} if manifest.family != "gpt" else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -196,12 +196,12 @@ class OnnxEngine:
             log.exception("decoding failed")
             return error
 
-    def continuous(self) -> ContinuousGpt | None:
-        """A continuous-batching session (requests join and leave at step boundaries), or None for the families
-        that keep run-to-completion micro-batching (masked: not autoregressive; T2M-HiFiGPT: not done yet)."""
-        if not isinstance(self.codes, GptCodes):
+    def continuous(self) -> ContinuousCohorts | None:
+        """A continuous-batching session (requests join and leave at step boundaries) for the autoregressive
+        families, or None for the masked family (not autoregressive: run-to-completion micro-batching)."""
+        if isinstance(self.codes, MaskedCodes):
             return None
-        return ContinuousGpt(self, self.codes)
+        return ContinuousCohorts(self, self.codes)
 
     @property
     def step(self) -> OnnxGptStep:

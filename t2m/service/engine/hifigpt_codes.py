@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from t2m.decoding.hifigpt import sample_code_rows
+from t2m.decoding.hifigpt import HiFiGPTCohort, sample_code_rows
 from t2m.decoding.lockstep import SamplingJob
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.gpt_codes import lockstep_job
@@ -43,3 +43,7 @@ class HiFiGPTCodes:
     def sample(self, jobs: Sequence[SamplingJob], max_tokens: int,
                on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
         return sample_code_rows(self.temporal, self.residual, jobs, max_tokens, on_step)
+
+    def cohort(self, jobs: Sequence[SamplingJob], max_tokens: int) -> HiFiGPTCohort:
+        """Jobs that start stepping together now (continuous batching: t2m.service.engine.continuous)."""
+        return HiFiGPTCohort(self.temporal, self.residual, jobs, max_tokens)

@@ -1,9 +1,12 @@
-"""Record the default model's outputs for fixed seeds: tests/data/default_model_outputs.npz.
+"""Record an embedded model's outputs for fixed seeds, checked by tests/service/test_fixed_seed_outputs.py.
 
-Recorded before the 0.4.0 restructuring (package moved under t2m/, one bundle contract, sampler split) and checked
-after it by tests/service/test_fixed_seed_outputs.py. Re-record only when the default model itself changes:
+tests/data/gpt_model_outputs.npz: the 1-layer GPT (t2m/bundles/gpt, the default up to 0.4.0), recorded before the
+0.4.0 restructuring (package moved under t2m/, one bundle contract, sampler split);
+tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded when it became the default (after 0.4.0).
+Re-record only when that model itself changes:
 
-    python tests/data/record_default_outputs.py t2m/bundles/default tests/data/default_model_outputs.npz
+    python tests/data/record_model_outputs.py t2m/bundles/default tests/data/default_model_outputs.npz
+    python tests/data/record_model_outputs.py t2m/bundles/gpt tests/data/gpt_model_outputs.npz
 """
 from __future__ import annotations
 
