@@ -149,11 +149,23 @@ def _assert_rejoins(front: NginxFront, replica: Replica, attempts: int = 30) -> 
     for _ in range(attempts):
         before = len(read_access_log(front.access_log))
         assert httpx.get(f"{front.url}/health", timeout=30).status_code == 200
-        (line,) = read_access_log(front.access_log)[before:]
+        line = _next_log_line(front, before)
         if line.upstreams[-1] == address:
             return
         time.sleep(1.0)
     pytest.fail(f"nginx sent none of {attempts} requests to the restarted replica {address}")
+
+
+def _next_log_line(front: NginxFront, before: int, timeout_s: float = 10.0):
+    """The access-log line after the first `before` ones: nginx writes it once the answer is sent, which can be just
+    after the client has read it."""
+    deadline = time.perf_counter() + timeout_s
+    while True:
+        lines = read_access_log(front.access_log)[before:]
+        if lines or time.perf_counter() > deadline:
+            (line,) = lines
+            return line
+        time.sleep(0.05)
 
 
 @pytest.mark.deploy
