@@ -10,7 +10,10 @@ depends on sizes, not values. Step graphs timed (all the imported graph, quantis
   integers on CPUs with and without VNNI);
 - int8 8-bit: the same with full 8-bit weights (NOT shipped: non-VNNI CPUs saturate; for comparison only);
 - weight-only int8 / int4: MatMulNBits (block-wise weights, dequantised in the kernel; float32 activations), where
-  this onnxruntime has it.
+  this onnxruntime has it;
+- int4 weights, int8 compute: MatMulNBits 4-bit, block 128, accuracy level 4 (activations quantised to int8 per
+  block, integer dot products). 4-bit weights cannot saturate a 16-bit pair sum (2 x 127 x 8), so no 7-bit rule is
+  needed; NOT shipped: int4, and its quality is unmeasured (random weights here, no trained release).
 
 Each step graph runs the service's own loop shape: `position` 0..tokens-1 with the KV cache, greedy choice; the
 reference recomputes the whole prefix with MotionGPT.forward every token (T2M-GPT's sample loop, as `t2m bench`).
@@ -41,13 +44,14 @@ sys.path.insert(0, str(REPO))   # run as a script: the repository's packages (an
 from benchmarks.released_models_speed import import_t2m_gpt_release, write_clip  # noqa: E402
 from t2m.export.machine import describe_machine  # noqa: E402
 
-VARIANTS = ["float32", "int8-7bit", "int8-8bit", "wo-int8", "wo-int4"]
+VARIANTS = ["float32", "int8-7bit", "int8-8bit", "wo-int8", "wo-int4", "int4-acc4"]
 LABELS = {
     "float32": "float32 step graph (KV cache)",
     "int8-7bit": "int8 MatMulInteger, 7-bit weights (shipped rule)",
     "int8-8bit": "int8 MatMulInteger, 8-bit weights (not shippable)",
     "wo-int8": "weight-only int8 MatMulNBits (block 32)",
     "wo-int4": "weight-only int4 MatMulNBits (block 32)",
+    "int4-acc4": "int4 weights, int8 compute: MatMulNBits block 128, accuracy level 4 (not shipped)",
     "eager": "PyTorch eager, prefix recomputed (reference)",
 }
 
@@ -62,15 +66,15 @@ def build_release_bundle(workdir: Path) -> Path:
     return out
 
 
-def weight_only(src: Path, dst: Path, bits: int) -> None:
-    """MatMulNBits: block-wise symmetric weights of `bits` bits, float32 activations (accuracy level 0: the kernel
-    dequantises; no integer products of activations, so no saturation question)."""
+def weight_only(src: Path, dst: Path, bits: int, block: int = 32, accuracy_level: int | None = None) -> None:
+    """MatMulNBits: block-wise symmetric weights of `bits` bits. Accuracy level None/0: float32 activations (the
+    kernel dequantises; no integer products, so no saturation question); 4: activations quantised to int8."""
     import onnx
     from onnxruntime.quantization.matmul_nbits_quantizer import DefaultWeightOnlyQuantConfig, MatMulNBitsQuantizer
 
-    config = DefaultWeightOnlyQuantConfig(block_size=32, is_symmetric=True, bits=bits)
-    quantizer = MatMulNBitsQuantizer(onnx.load(str(src)), bits=bits, block_size=32, is_symmetric=True,
-                                     algo_config=config)
+    config = DefaultWeightOnlyQuantConfig(block_size=block, is_symmetric=True, bits=bits, accuracy_level=accuracy_level)
+    quantizer = MatMulNBitsQuantizer(onnx.load(str(src)), bits=bits, block_size=block, is_symmetric=True,
+                                     accuracy_level=accuracy_level, algo_config=config)
     quantizer.process()
     quantizer.model.save_model_to_file(str(dst), use_external_data_format=False)
 
@@ -87,6 +91,8 @@ def variant_graph(bundle: Path, variant: str) -> Path:
         start = time.perf_counter()
         if variant in ("int8-7bit", "int8-8bit"):
             quantize_graph(fp32, path, reduce_range=variant == "int8-7bit")
+        elif variant == "int4-acc4":
+            weight_only(fp32, path, bits=4, block=128, accuracy_level=4)
         else:
             weight_only(fp32, path, bits=8 if variant == "wo-int8" else 4)
         print(f"- {variant}: quantised in {time.perf_counter() - start:.0f} s, {path.stat().st_size / 1e6:.0f} MB",
