@@ -1,9 +1,10 @@
-"""`t2m eval --bundle DIR`: Table 1 for exactly what a GPT bundle serves, without its training runs.
+"""`t2m eval --bundle DIR`: Table 1 for exactly what a GPT or T2M-HiFiGPT bundle serves, without its training runs.
 
-The family's codes come from the service's own GPT loop (t2m.service.engine.gpt_codes over t2m.decoding.gpt) stepping
-the bundle's gpt_step.onnx, its text features from the bundle's tokenizer + text_encoder.onnx, and the motions from
-its decoder.onnx, all loaded by the service's loader (hashes checked). So an int8 graph is measured as served. A
-bundle has no VQ encoder: the evaluation has no VQ-reconstruction row (and no "real crops' VQ codes" stream row).
+The family's codes come from the service's own lockstep loop (t2m.service.engine.gpt_codes / hifigpt_codes over
+t2m.decoding.gpt / hifigpt) stepping the bundle's step graphs, its text features from the bundle's tokenizer +
+text_encoder.onnx, and the motions from its decoder.onnx, all loaded by the service's loader (hashes checked). So an
+int8 graph is measured as served. A bundle has no VQ encoder: the evaluation has no VQ-reconstruction row (and no
+"real crops' VQ codes" stream row).
 """
 from __future__ import annotations
 
@@ -16,19 +17,20 @@ import numpy as np
 from t2m.decoding.gpt import SamplingJob
 from t2m.model.evaluation.evaluate import Models
 
-__all__ = ["BundleDecoder", "BundleGptFamily", "load_bundle_models"]
+__all__ = ["BundleDecoder", "BundleLockstepFamily", "load_bundle_models"]
 
 
-class BundleGptFamily:
-    """Exactly `tokens[i]` codes per text from a bundle's step graph: every row one target segment of one job, as
-    the PyTorch GPT family's reference job, so both draw the same uniforms in the same order."""
+class BundleLockstepFamily:
+    """Exactly `tokens[i]` time steps per text from a bundle's step graphs (GPT: one code each; T2M-HiFiGPT: a row
+    of R codes): every row one target segment of one job, as the PyTorch family's reference job, so both draw the same
+    uniforms in the same order."""
 
-    name = "gpt"
     text_encoder = "bundle"        # features from the bundle's own text graph (Models.family_text)
     batch_by_length = False
 
-    def __init__(self, codes: Any, max_tokens: int, path: str) -> None:
-        self._codes = codes        # t2m.service.engine.gpt_codes.GptCodes
+    def __init__(self, codes: Any, max_tokens: int, path: str, name: str = "gpt") -> None:
+        self._codes = codes        # the engine's GptCodes or HiFiGPTCodes
+        self.name = name
         self.max_tokens = max_tokens
         self.paths = {"bundle": path}
         self.settings: dict[str, Any] = {}
@@ -59,21 +61,25 @@ class BundleDecoder:
 
 
 def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, threads: int = 1) -> Models:
-    """The evaluator and a served GPT bundle (its text graph, step graph and decoder in onnxruntime)."""
+    """The evaluator and a served GPT or T2M-HiFiGPT bundle (its text graph, step graphs and decoder in onnxruntime)."""
     from t2m.model.training.checkpoint import load_model
     from t2m.service.engine.bundle import load_bundle
     from t2m.service.engine.gpt_codes import GptCodes
+    from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
     from t2m.service.engine.text import TextEncoder, load_tokenizer
 
     bundle = load_bundle(bundle_dir, intra_op_threads=threads)
     manifest = bundle.manifest
-    if manifest.family != "gpt":
-        raise ValueError(f"{bundle_dir}: --bundle evaluates GPT-family bundles; this one is {manifest.family!r}")
+    lockstep_codes = {"gpt": GptCodes, "hifigpt": HiFiGPTCodes}
+    if manifest.family not in lockstep_codes:
+        raise ValueError(f"{bundle_dir}: --bundle evaluates GPT and T2M-HiFiGPT bundles; this one is "
+                         f"{manifest.family!r}")
     evaluator = load_model(evaluator_run, expect_kind="evaluator")
     if evaluator.config.feature_dim != manifest.feature_dim:
         raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, bundle "
                          f"{manifest.feature_dim}")
-    family = BundleGptFamily(GptCodes(bundle), manifest.max_tokens, str(bundle_dir))
+    family = BundleLockstepFamily(lockstep_codes[manifest.family](bundle), manifest.max_tokens, str(bundle_dir),
+                                  manifest.family)
     text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
     return Models(evaluator, None, family, bundle.mean.astype(np.float32), bundle.std.astype(np.float32),
                   evaluator_text=evaluator.config.text_encoder,

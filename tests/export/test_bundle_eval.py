@@ -1,4 +1,4 @@
-"""`t2m eval --bundle`: the evaluation of a served GPT bundle makes exactly the service's motions (same codes, same
+"""`t2m eval --bundle`: the evaluation of a served GPT or T2M-HiFiGPT bundle makes exactly the service's motions (same codes, same
 decoder, same joints for a seed), and the report has no VQ-reconstruction row (a bundle has no VQ encoder)."""
 from __future__ import annotations
 
@@ -11,20 +11,25 @@ import torch
 
 from t2m.cli.main import main
 from t2m.export.bundle_family import load_bundle_models
-from t2m.export.random_bundle import build_random_bundle
+from t2m.export.random_bundle import build_random_bundle, build_random_hifigpt_bundle
 from t2m.motion.features import features_to_joints
 from tests.model.synthetic_motion_data import make_dataset
 from tests.model.test_evaluation import HashTextEncoder
 
 
-@pytest.fixture(scope="module")
-def bundle_and_evaluator(tmp_path_factory):
-    """A tiny random GPT bundle, a random tiny evaluator and the tiny dataset (test split = every clip)."""
+@pytest.fixture(scope="module", params=["gpt", "hifigpt"])
+def bundle_and_evaluator(request, tmp_path_factory):
+    """A tiny random GPT or T2M-HiFiGPT bundle, a random tiny evaluator and the tiny dataset (test split = every
+    clip)."""
     from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
     from t2m.model.training.checkpoint import save_checkpoint
 
     root = tmp_path_factory.mktemp("bundle_eval")
-    bundle = build_random_bundle(root / "bundle", codebook_size=16, embed=16, n_head=2, n_layer=2)
+    if request.param == "gpt":
+        bundle = build_random_bundle(root / "bundle", codebook_size=16, embed=16, n_head=2, n_layer=2)
+    else:
+        torch.set_num_threads(1)
+        bundle = build_random_hifigpt_bundle(root / "bundle", depth=3, codebook_size=16, seed=2)
     data = make_dataset(root / "data", train_clips=6, val_clips=2)
     ids = [line for split in ("train", "val", "test") for line in (data / f"{split}.txt").read_text().split()]
     (data / "test.txt").write_text("\n".join(ids) + "\n")
@@ -46,7 +51,8 @@ def test_bundle_family_makes_the_services_motion(bundle_and_evaluator):
                                 guidance=3.0, temperature=1.0, top_k=8)
     served = OnnxEngine.load(bundle, intra_op_threads=1).generate(request)
     assert models.family_text is not None and models.decoder is not None
-    tokens = [round(s * 20 / 4) for s in seconds]
+    per_step = json.loads((bundle / "manifest.json").read_text())["frames_per_token"]
+    tokens = [round(s * 20 / per_step) for s in seconds]
     codes = models.family.codes(models.family_text.encode(texts), tokens, 3.0, 1.0, 8, np.random.default_rng(7))
     assert [len(c) for c in codes] == tokens
     features = models.decoder.decode_batch(np.concatenate(codes)[None])[0]

@@ -22,7 +22,7 @@ def test_an_edited_card_verifies_again_after_rehash(random_bundle, tmp_path):
     shutil.copytree(random_bundle, bundle)
     before = json.loads((bundle / "manifest.json").read_text())
     (bundle / "MODEL_CARD.md").write_text((bundle / "MODEL_CARD.md").read_text() + "\nA corrected sentence.\n")
-    with pytest.raises(BundleError, match="MODEL_CARD.md"):
+    with pytest.raises(BundleError, match=r"MODEL_CARD\.md"):
         verify_bundle(bundle)
     assert rehash(bundle) == ["MODEL_CARD.md"]
     after = verify_bundle(bundle)
