@@ -1,5 +1,6 @@
-"""`t2m eval --bundle`: the evaluation of a served GPT or T2M-HiFiGPT bundle makes exactly the service's motions (same codes, same
-decoder, same joints for a seed), and the report has no VQ-reconstruction row (a bundle has no VQ encoder)."""
+"""`t2m eval --bundle`: the evaluation of a served GPT or T2M-HiFiGPT bundle makes exactly the service's motions (same
+codes, same decoder, same joints for a seed), and the report has no VQ-reconstruction row (a bundle has no VQ
+encoder)."""
 from __future__ import annotations
 
 import json
