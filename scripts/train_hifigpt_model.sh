@@ -45,12 +45,12 @@ t2m train hifigpt --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/hifigpt" --steps 
 [ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
   --text-cache "$TEXT" --steps 600 --threads 2
 
-# 3. The bundle (seeded guided rollout parity in its card), for the service, `t2m bench --bundle` and the probes.
-#    int8 text encoder only (the default's file, linked: scripts/share_bundle_files.py); the step graphs stay float32
-#    (10 MB each): with --int8 temporal,residual they shrink to 2.6 MB but 48 of the rollout's 108 sampled codes
-#    changed (max code-logit difference 0.84), and the size budget did not need it.
-t2m export --family hifigpt --vq "$RUNS/rvq" --hifigpt "$RUNS/hifigpt" --int8 text --name t2m-bandai-hifigpt-minilm \
-  --version 0.2.0 --model-card docs/model_card_hifigpt.md -o t2m/bundles/default
+# 3. The bundle (seeded guided rollout checks in its card), for the service, `t2m bench --bundle` and the probes.
+#    0.2.1: int8 text encoder AND step graphs (10 MB -> 2.7 MB each). Shipped by issue 17's rule, measured on the
+#    bundle as served (step 4b): Table 1 within the float32 export's intervals, the probes held, 2x faster. (0.2.0 was
+#    the same export with --int8 text only; its float32 step graphs reproduce PyTorch's rollout codes exactly.)
+t2m export --family hifigpt --vq "$RUNS/rvq" --hifigpt "$RUNS/hifigpt" --int8 text,temporal,residual \
+  --name t2m-bandai-hifigpt-minilm --version 0.2.1 --model-card docs/model_card_hifigpt.md -o t2m/bundles/default
 t2m index-captions t2m/bundles/default --data "$DATA"
 python scripts/share_bundle_files.py      # the gpt and masked bundles link the default's text files
 
@@ -62,6 +62,10 @@ python scripts/share_bundle_files.py      # the gpt and masked bundles link the 
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/rvq" --hifigpt "$RUNS/hifigpt" \
   --guidance 3 --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --text-cache "$TEXT" --threads 2 \
   --out "$RUNS/eval_hifigpt2.md"
+# 4b. Table 1 of the bundle as served (its own graphs through the service's loop; 48 s), for the int8 decision: run it
+#     on a float32 export (--int8 text, -o DIR) too and compare.
+t2m eval --bundle t2m/bundles/default --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --guidance 3 \
+  --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_bundle_default.md"
 # The kinematic probes on the bundle (free wordings x 5 seeds), beside the GPT model's; and its request speed.
 python benchmarks/probes.py --bundle t2m/bundles/default --seeds 5 --json-out "$RUNS/probes_hifigpt2.json"
 t2m bench --bundle default --bundle gpt --bundle masked --threads 1 --repeats 10    # then --threads 2
