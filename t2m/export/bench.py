@@ -32,7 +32,7 @@ from t2m.export.machine import describe_machine
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
-DEFAULT_MANIFEST = GPT_BUNDLE / "manifest.json"
+GPT_MANIFEST = GPT_BUNDLE / "manifest.json"
 RELEASE_GPT = GPTConfig(codebook_size=512, embed=1024, n_head=16, n_layer_base=9, n_layer_head=9, block_size=51,
                         dropout=0.0, text_dim=512, length_conditioning=False)
 RELEASE_VQ = VQConfig(width=512, code_dim=512, nb_code=512)
@@ -62,12 +62,12 @@ class BenchRow:
         return self.ms_generate + self.ms_decode
 
 
-def default_sizes() -> tuple[GPTConfig, VQConfig, str]:
+def gpt_sizes() -> tuple[GPTConfig, VQConfig, str]:
     """The embedded GPT bundle's sizes (t2m/bundles/gpt: the 1-layer GPT these timings are about), else defaults.
 
     VQ sizes are not in a manifest: the VQ gets VQConfig's defaults (with the bundle's codebook size)."""
-    if DEFAULT_MANIFEST.is_file():
-        manifest = json.loads(DEFAULT_MANIFEST.read_text())
+    if GPT_MANIFEST.is_file():
+        manifest = json.loads(GPT_MANIFEST.read_text())
         g = manifest["gpt"]
         n_layer = g["n_layer"]
         gpt = GPTConfig(codebook_size=manifest["codebook_size"], embed=g["n_head"] * g["head_dim"], n_head=g["n_head"],
@@ -197,7 +197,7 @@ def machine_lines(threads: int) -> list[str]:
 def run_bench(quick: bool = False, threads: int | None = None, include_release: bool = True,
               echo: Callable[[str], None] = print, cases: list[BenchCase] | None = None,
               cache_dir: Path | None = None) -> float:
-    """Run the benchmark, print a markdown table; return the default size's speedup vs eager recomputation.
+    """Run the benchmark, print a markdown table; return the embedded GPT size's speedup vs eager recomputation.
 
     ``cases`` replaces the two standard sizes (the first one is reported as the speedup). Exported graphs
     are kept in ``cache_dir`` (default ~/.cache/t2m/bench; exporting the 1 GB release-size graph takes
@@ -206,10 +206,10 @@ def run_bench(quick: bool = False, threads: int | None = None, include_release: 
     """
     threads = threads or os.cpu_count() or 1
     torch.set_num_threads(threads)
-    gpt_default, vq_default, source = default_sizes()
+    gpt_small, vq_small, source = gpt_sizes()
     if cases is None:
-        cases = [BenchCase("default", gpt_default, vq_default, tokens=50, repeats=1 if quick else 3, note=source)]
-    if include_release and cases[0].label == "default" and len(cases) == 1:
+        cases = [BenchCase("gpt", gpt_small, vq_small, tokens=50, repeats=1 if quick else 3, note=source)]
+    if include_release and cases[0].label == "gpt" and len(cases) == 1:
         release_tokens = 10 if quick else 50
         cases.append(BenchCase("t2m-gpt-release", RELEASE_GPT, RELEASE_VQ, tokens=release_tokens, repeats=1,
                                note="random weights, 228M-parameter GPT" +
