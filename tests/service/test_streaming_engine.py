@@ -20,8 +20,8 @@ STREAM_TOLERANCE_M = 1e-5
 
 def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
     """The reach of a decoder graph computed from its nodes: per time position the first and last code it depends
-    on, through every Conv (kernel, dilation, pads, stride) and nearest Resize in graph order, as one chain (a
-    residual branch is the longer path, so the chain bounds it)."""
+    on, through every Conv (kernel, dilation, pads, stride), Slice along time and nearest Resize in graph order, as
+    one chain (a residual branch is the longer path, so the chain bounds it)."""
     onnx = pytest.importorskip("onnx")
     from onnx import numpy_helper
 
@@ -43,6 +43,10 @@ def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
             clipped = np.clip(taps, 0, len(first) - 1)
             first = np.where(inside, first[clipped], tokens).min(axis=1)
             last = np.where(inside, last[clipped], -1).max(axis=1)
+        elif node.op_type == "Slice":   # a causal residual block trims its conv (t2m/model/networks/vqvae.py)
+            starts, ends, axes = (int(constants[name][0]) for name in node.input[1:4])
+            assert axes in (2, -1), f"a Slice of axis {axes}: not along time"
+            first, last = first[starts:ends], last[starts:ends]
         elif node.op_type == "Resize":
             assert attributes["mode"] == b"nearest" and attributes["nearest_mode"] == b"floor"
             factor = int(constants[node.input[2]][-1])
@@ -194,4 +198,24 @@ def test_a_hifigpt_bundle_streams_early_frames_equal_to_the_unstreamed_motion(hi
     chunks, streamed, whole = _streamed(engine, [("a person walks", 8.0), ("a person waves", None)], seed=8)
     assert len(chunks) >= 2 and len(chunks[0]) == 8   # the first final step's 8 frames at once
     assert streamed.shape == whole.shape
+    assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
+
+
+def test_a_causal_decoder_looks_three_steps_ahead_and_streams_a_one_sentence_motion_early(tmp_path, hifigpt_bundle):
+    """A decoder whose residual blocks read only past frames (VQConfig.causal_decoder_blocks): its graph's bound
+    (through the trimming Slice) is what the probe measures, it looks 3 steps ahead (at most: conv_in's next code,
+    and the k=3 convolutions after each x2 level), fewer than the same decoder without causal blocks, and a motion of
+    one sentence gets early frames equal to its whole decode."""
+    from t2m.export.random_bundle import build_random_hifigpt_bundle
+    from t2m.service.engine.engine import OnnxEngine
+
+    bundle = build_random_hifigpt_bundle(tmp_path / "causal", depth=3, codebook_size=16, seed=2,
+                                         causal_decoder_blocks=True)
+    engine = OnnxEngine.load(bundle, intra_op_threads=1)
+    symmetric = OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
+    assert engine.reach == graph_reach(bundle / "decoder.onnx")
+    assert engine.reach.ahead <= 3 and engine.reach.ahead < symmetric.reach.ahead
+    assert engine.reach.behind > symmetric.reach.behind   # the causal blocks look twice as far back
+    chunks, streamed, whole = _streamed(engine, [("a person walks", 10.0)], seed=8)
+    assert len(chunks[0]) == 8 and sum(len(chunk) for chunk in chunks) >= len(whole) // 2   # chunks double
     assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M

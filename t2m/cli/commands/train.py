@@ -1,8 +1,8 @@
 """`t2m train KIND`: the training entry points (torch is imported only when one runs).
 
-Each trainer module (t2m.model.training.train_vq, train_gpt, train_evaluator, train_joint_vq, train_masked,
-train_residual, train_length, train_hifigpt) exposes `add_arguments(parser)` and `main(args)`; this command only
-wires them to sub-commands.
+Each trainer module (t2m.model.training.train_vq, train_vq_decoder, train_gpt, train_evaluator, train_joint_vq,
+train_masked, train_residual, train_length, train_hifigpt) exposes `add_arguments(parser)` and `main(args)`; this
+command only wires them to sub-commands.
 """
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ import importlib
 
 TRAINERS = {
     "vq": ("t2m.model.training.train_vq", "train the motion VQ-VAE on feature windows"),
+    "vq-decoder": ("t2m.model.training.train_vq_decoder",
+                   "train a new decoder (e.g. a short-lookahead one) for a trained VQ on its frozen codes"),
     "gpt": ("t2m.model.training.train_gpt", "train the text-to-code GPT on a trained VQ's codes"),
     "evaluator": ("t2m.model.training.train_evaluator", "train the text-motion evaluator used by `t2m eval`"),
     # the masked family (MoGenTS / MoMask)

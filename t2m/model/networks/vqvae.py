@@ -41,6 +41,9 @@ class VQConfig:
     quantizer_dropout: float = 0.2
     ema_mu: float = 0.99
     shared_codebook: bool = False  # residual only: one codebook for every depth (T2M-HiFiGPT's RVQ-VAE)
+    # the decoder's dilated residual convolutions see only past frames: a frame then depends on 3 codes ahead at
+    # most instead of ~25 (8 frames per code), so a stream's frames are final almost as soon as their codes exist
+    causal_decoder_blocks: bool = False
 
     def __post_init__(self) -> None:
         if self.quantizer not in QUANTIZERS:
@@ -73,24 +76,32 @@ class VQConfig:
 
 
 class ResBlock(nn.Module):
-    """x + conv2(relu(conv1(relu(x)))): a dilated k=3 conv then a k=1 conv, no normalisation."""
+    """x + conv2(relu(conv1(relu(x)))): a dilated k=3 conv then a k=1 conv, no normalisation.
 
-    def __init__(self, width: int, dilation: int) -> None:
+    causal: conv1 reads frames t - 2d, t - d, t instead of t - d, t, t + d (padded by 2d both sides, the last 2d
+    outputs dropped: one Conv and one Slice in ONNX, where a left-only Pad would export as a subgraph)."""
+
+    def __init__(self, width: int, dilation: int, causal: bool = False) -> None:
         super().__init__()
-        self.conv1 = nn.Conv1d(width, width, kernel_size=3, stride=1, padding=dilation, dilation=dilation)
+        self.trim = 2 * dilation if causal else 0
+        self.conv1 = nn.Conv1d(width, width, kernel_size=3, stride=1, padding=dilation + self.trim // 2,
+                               dilation=dilation)
         self.conv2 = nn.Conv1d(width, width, kernel_size=1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x + self.conv2(F.relu(self.conv1(F.relu(x))))
+        h = self.conv1(F.relu(x))
+        if self.trim:
+            h = h[..., : -self.trim]
+        return x + self.conv2(F.relu(h))
 
 
 class Resnet1D(nn.Module):
     """``depth`` residual blocks with dilations growth**i, largest first (9, 3, 1 for depth 3, growth 3)."""
 
-    def __init__(self, width: int, depth: int, dilation_growth: int) -> None:
+    def __init__(self, width: int, depth: int, dilation_growth: int, causal: bool = False) -> None:
         super().__init__()
         dilations = [dilation_growth**i for i in range(depth)][::-1]
-        self.model = nn.Sequential(*(ResBlock(width, d) for d in dilations))
+        self.model = nn.Sequential(*(ResBlock(width, d, causal) for d in dilations))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.model(x)
@@ -122,7 +133,7 @@ class Decoder(nn.Module):
         for _ in range(config.down_t):
             layers.append(
                 nn.Sequential(
-                    Resnet1D(w, config.depth, config.dilation_growth),
+                    Resnet1D(w, config.depth, config.dilation_growth, config.causal_decoder_blocks),
                     nn.Upsample(scale_factor=2, mode="nearest"),
                     nn.Conv1d(w, w, 3, 1, 1),
                 )
