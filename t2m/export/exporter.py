@@ -358,7 +358,7 @@ def export_from_runs(
 
     ``text_source`` replaces building the run's text encoder (tests pass an already loaded MiniLM).
     """
-    from t2m.model.training.checkpoint import load_model
+    from t2m.model.training.checkpoint import check_trained_on, load_model
 
     check_int8_choice(int8)
     vq_run, gpt_run = Path(vq_run), Path(gpt_run)
@@ -367,9 +367,7 @@ def export_from_runs(
         if record["kind"] != expected:
             raise ValueError(f"{run}/config.json: expected a {expected} checkpoint, found {record['kind']!r}")
     gpt_data = gpt_record.get("data", {})
-    trained_with = gpt_data.get("vq_run")
-    if trained_with and Path(trained_with).exists() and Path(trained_with).resolve() != vq_run.resolve():
-        raise ValueError(f"{gpt_run}: the GPT was trained on the codes of {trained_with}, not of {vq_run}")
+    check_trained_on(gpt_run, vq_run)
     run_text = (gpt_data.get("text_encoder") or {}).get("kind")
     kind = text_encoder or run_text or "minilm"
     if run_text and kind != run_text:

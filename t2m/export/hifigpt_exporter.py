@@ -218,8 +218,8 @@ def export_hifigpt_from_runs(
     """A verified hifigpt bundle from a residual vq run and a hifigpt run. ``text_source`` replaces building the
     run's text encoder (tests)."""
     from t2m.export.exporter import _normalisation, recorded_text_source, run_training_data
-    from t2m.model.evaluation.masked_family import check_trained_on, load_run
-    from t2m.model.training.checkpoint import read_run_config
+    from t2m.model.evaluation.masked_family import load_run
+    from t2m.model.training.checkpoint import check_trained_on, read_run_config
 
     vq_run, hifigpt_run = Path(vq_run), Path(hifigpt_run)
     vq_record, record = read_run_config(vq_run), read_run_config(hifigpt_run)

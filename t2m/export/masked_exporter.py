@@ -394,8 +394,8 @@ def export_masked_from_runs(
     """A verified masked bundle from a joint_vq (or 1D vq) run, a masked run, a residual run (when the VQ has more
     than one layer) and an optional length run. ``text_source`` replaces building the run's text encoder (tests)."""
     from t2m.export.exporter import _normalisation, recorded_text_source, run_training_data
-    from t2m.model.evaluation.masked_family import check_trained_on, load_run
-    from t2m.model.training.checkpoint import read_run_config
+    from t2m.model.evaluation.masked_family import load_run
+    from t2m.model.training.checkpoint import check_trained_on, read_run_config
 
     vq_run, masked_run = Path(vq_run), Path(masked_run)
     runs = {"masked": masked_run, "residual": residual_run, "length": length_run}

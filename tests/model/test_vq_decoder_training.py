@@ -5,6 +5,7 @@ past; training changes the decoder alone (encoder, codebooks and EMA statistics 
 text-to-code model learnt are the ones it decodes); bad options are refused naming the option."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -59,12 +60,18 @@ def test_the_new_decoder_starts_from_the_old_one_with_its_taps_moved_into_the_pa
         assert torch.equal(new[name][..., 1:], old[name][..., :2]) and not new[name][..., 0].any()
 
 
-def test_training_changes_the_decoder_alone(data_dir, vq_run, tmp_path):
+@pytest.fixture(scope="module")
+def decoder_run(data_dir, vq_run, tmp_path_factory) -> Path:
     from t2m.cli.main import main
 
-    out = tmp_path / "causal"
+    out = tmp_path_factory.mktemp("runs") / "causal"
     assert main(["train", "vq-decoder", "--data", str(data_dir), "--vq", str(vq_run), "--out", str(out),
                  *FEW_STEPS]) == 0
+    return out
+
+
+def test_training_changes_the_decoder_alone(vq_run, decoder_run):
+    out = decoder_run
     source, trained = load_model(vq_run, "vq"), load_model(out, "vq")
     assert trained.config.causal_decoder_blocks and not source.config.causal_decoder_blocks
     assert (out / "mean.npy").read_bytes() == (vq_run / "mean.npy").read_bytes()
@@ -85,3 +92,24 @@ def test_bad_options_are_refused(data_dir, vq_run, tmp_path):
     assert main(["train", "vq-decoder", *common, "--out", str(tmp_path / "b"), "--bone-weight", "-1"]) == 2
     assert main(["train", "vq-decoder", "--data", str(data_dir), "--vq", str(tmp_path / "none"),
                  "--out", str(tmp_path / "c")]) == 2
+
+
+def test_a_token_model_of_the_old_codes_is_accepted_with_the_new_decoder_and_another_vq_is_refused(
+        data_dir, vq_run, decoder_run, tmp_path):
+    """`t2m eval` and the exporters check that a GPT / HiFiGPT / masked run learnt the --vq's codes: a new decoder on
+    the same codes gives them, an independently trained VQ does not."""
+    from t2m.cli.main import main
+    from t2m.model.training.checkpoint import check_trained_on, codes_source
+
+    token_run = tmp_path / "hifigpt"
+    token_run.mkdir()
+    (token_run / "config.json").write_text(json.dumps({"kind": "hifigpt", "config": {}, "data": {
+        "vq_run": str(vq_run.resolve())}}))
+    assert codes_source(decoder_run) == vq_run.resolve()
+    check_trained_on(token_run, vq_run)
+    check_trained_on(token_run, decoder_run)
+    other = tmp_path / "other_vq"
+    assert main(["train", "vq", "--data", str(data_dir), "--out", str(other), *TINY, *FEW_STEPS[:2],
+                 "--threads", "1"]) == 0
+    with pytest.raises(ValueError, match="trained on the codes of"):
+        check_trained_on(token_run, other)

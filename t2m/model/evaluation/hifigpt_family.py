@@ -39,8 +39,9 @@ class HiFiGPTFamily:
 
 def load_hifigpt_family(hifigpt_run: str | Path, vq: MotionVQVAE, vq_run: str | Path) -> HiFiGPTFamily:
     """The HiFiGPT run, checked against the VQ (codebook, depth, code_dim) and the VQ it was trained on."""
-    from t2m.model.evaluation.masked_family import check_trained_on, load_run, text_kind
+    from t2m.model.evaluation.masked_family import load_run, text_kind
     from t2m.model.networks.hifigpt import HiFiGPT, check_fits_vq
+    from t2m.model.training.checkpoint import check_trained_on
 
     model = load_run(hifigpt_run, "hifigpt", HiFiGPT)
     check_trained_on(hifigpt_run, vq_run)

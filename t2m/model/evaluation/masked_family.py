@@ -123,15 +123,6 @@ def text_kind(run: str | Path) -> str:
     return str(text.get("kind", "minilm") if isinstance(text, dict) else text)
 
 
-def check_trained_on(run: str | Path, vq_run: str | Path) -> None:
-    """A token model learned one VQ's codes: refuse another VQ (when the recorded one still exists)."""
-    from t2m.model.training.checkpoint import read_run_config
-
-    recorded = read_run_config(run).get("data", {}).get("vq_run")
-    if recorded and Path(recorded).exists() and Path(recorded).resolve() != Path(vq_run).resolve():
-        raise ValueError(f"{run}: trained on the codes of {recorded}, not of --vq {vq_run}")
-
-
 def load_masked_family(vq: MotionVQVAE | JointVQVAE, vq_run: str | Path, masked_run: str | Path,
                        residual_run: str | Path | None, length_run: str | Path | None,
                        settings: MaskedSettings) -> MaskedFamily:
@@ -139,6 +130,7 @@ def load_masked_family(vq: MotionVQVAE | JointVQVAE, vq_run: str | Path, masked_
     from t2m.model.networks.length_estimator import LengthEstimator
     from t2m.model.networks.masked_transformer import MaskedTransformer
     from t2m.model.networks.residual_transformer import ResidualTransformer
+    from t2m.model.training.checkpoint import check_trained_on
 
     layers, columns = _layers_and_columns(vq)
     masked = load_run(masked_run, "masked", MaskedTransformer)

@@ -87,6 +87,30 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
     return record
 
 
+CODES_OF = "decoder_trained_on_the_codes_of"   # a `t2m train vq-decoder` run: whose encoder and codebooks it kept
+
+
+def codes_source(vq_run: str | Path) -> Path:
+    """The VQ run whose codes `vq_run` gives: itself, or for a run of `t2m train vq-decoder` (a new decoder on
+    frozen codes) the run it kept the encoder and codebooks of, followed back to the first."""
+    run = Path(vq_run).resolve()
+    seen = {run}
+    while (source := read_run_config(run).get("data", {}).get(CODES_OF)) and Path(source).exists():
+        run = Path(source).resolve()
+        if run in seen:
+            break
+        seen.add(run)
+    return run
+
+
+def check_trained_on(token_run: str | Path, vq_run: str | Path) -> None:
+    """A token model (GPT, masked, residual, HiFiGPT) learned one VQ's codes: refuse a VQ that gives other codes
+    (when the recorded VQ run still exists); a new decoder on the same codes is accepted."""
+    recorded = read_run_config(token_run).get("data", {}).get("vq_run")
+    if recorded and Path(recorded).exists() and Path(recorded).resolve() != codes_source(vq_run):
+        raise ValueError(f"{token_run}: trained on the codes of {recorded}, not of --vq {vq_run}")
+
+
 def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
     """An untrained module of the given kind from its config dict."""
     if kind == "vq":

@@ -69,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
     from t2m.model.data.motion_data import SKELETON_BY_DIM
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
     from t2m.model.training.bone_lengths import BoneLengths
-    from t2m.model.training.checkpoint import load_model
+    from t2m.model.training.checkpoint import CODES_OF, load_model
     from t2m.model.training.loop import infinite, run_training, set_seed, set_threads
     from t2m.model.training.train_vq import validate_vq, vq_loss, window_loader
     from t2m.motion.skeleton import get_skeleton
@@ -114,7 +114,7 @@ def main(args: argparse.Namespace) -> int:
         "data_dir": str(Path(args.data).resolve()), "train_clips": len(train_set), "val_windows": len(val_windows),
         "window": args.window, "batch_size": args.batch_size, "seed": args.seed, "balance_power": args.balance_power,
         "loss": {"vel_weight": args.vel_weight, "bone_weight": args.bone_weight},
-        "decoder_trained_on_the_codes_of": str(source_dir.resolve()),
+        CODES_OF: str(source_dir.resolve()),
         "normalization": {"mean": "mean.npy", "std": "std.npy"},
     }
     run_training(
