@@ -41,6 +41,16 @@ t2m train hifigpt --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/hifigpt" --steps 
   --balance-power 0.3 --text-cache "$TEXT" --log-every 25 --val-every 500 --save-every 250 --threads 2 --seed 0 \
   --resume
 
+# 2c. 0.3.0: a new decoder on the same codes (the encoder, codebooks and GPT stay): its dilated residual blocks read
+#     only past frames, so it looks 3 steps ahead instead of 25 and a one-sentence motion streams early frames; and
+#     64-frame windows of all 6 depths (no quantiser dropout: the GPT always gives 6), so its dilation-9 taps see
+#     real neighbours more often than in stage 1's 32-frame windows. Starts from stage 1's decoder (taps moved one
+#     into the past). 12000 steps, one thread beside a control run: ~30 min. The control (the same training without
+#     causal blocks, --no-causal-decoder-blocks --out "$RUNS/rvq_refit") separates what causality costs.
+t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --steps 12000 --batch-size 64 \
+  --window 64 --lr 2e-4 --warmup-steps 200 --lr-milestones 0.7 --bone-weight 0.5 --balance-power 0.5 --log-every 50 \
+  --val-every 1000 --save-every 500 --threads 1 --seed 0
+
 # The evaluator of the default GPT's table (scripts/train_gpt_model.sh; deterministic, 0.6 min), if missing.
 [ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
   --text-cache "$TEXT" --steps 600 --threads 2

@@ -2,7 +2,8 @@
 
 tests/data/gpt_model_outputs.npz: the 1-layer GPT (t2m/bundles/gpt, the default up to 0.4.0), recorded before the
 0.4.0 restructuring (package moved under t2m/, one bundle contract, sampler split);
-tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded when it became the default (after 0.4.0).
+tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded again for its 0.3.0 (a new decoder on the same
+codes: the same spans, other joints).
 Re-record only when that model itself changes:
 
     python tests/data/record_model_outputs.py t2m/bundles/default tests/data/default_model_outputs.npz

@@ -20,8 +20,9 @@ STREAM_TOLERANCE_M = 1e-5
 
 def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
     """The reach of a decoder graph computed from its nodes: per time position the first and last code it depends
-    on, through every Conv (kernel, dilation, pads, stride), Slice along time and nearest Resize in graph order, as
-    one chain (a residual branch is the longer path, so the chain bounds it)."""
+    on, through every Conv (kernel, dilation, pads, stride; a tap whose weights are all zero reads nothing), Slice
+    along time and nearest Resize in graph order, as one chain (a residual branch is the longer path, so the chain
+    bounds it)."""
     onnx = pytest.importorskip("onnx")
     from onnx import numpy_helper
 
@@ -38,8 +39,10 @@ def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
             (stride,) = attributes["strides"]
             before, after = attributes["pads"]
             length = (len(first) + before + after - dilation * (kernel - 1) - 1) // stride + 1
+            weight = constants[node.input[1]]
+            used = weight.reshape(-1, kernel).any(axis=0) if weight.shape[-1] == kernel else np.ones(kernel, bool)
             taps = np.arange(length)[:, None] * stride - before + np.arange(kernel)[None] * dilation
-            inside = (taps >= 0) & (taps < len(first))
+            inside = (taps >= 0) & (taps < len(first)) & used[None]
             clipped = np.clip(taps, 0, len(first) - 1)
             first = np.where(inside, first[clipped], tokens).min(axis=1)
             last = np.where(inside, last[clipped], -1).max(axis=1)
@@ -87,14 +90,19 @@ def test_the_gpt_decoder_reaches_22_codes_each_way_as_its_graph_says(gpt_engine,
                                                       "lookbehind_tokens": 22, "every_tokens": 8}
 
 
-def test_the_default_decoder_reaches_25_steps_each_way_as_its_graph_says(default_model):
-    """T2M-HiFiGPT's decoder (three x2 levels, 8 frames per step) looks 25 steps each way: as many as a 10 s motion
-    has, so a motion of one sentence gets its frames only at the end; longer streams of sentences get early ones."""
+def test_the_default_decoder_looks_3_steps_ahead_and_35_back_as_its_graph_says(default_model):
+    """The default's decoder (0.3.0: causal residual blocks, three x2 levels, 8 frames per step) looks 3 steps ahead
+    (its 0.2 decoder: 25, as many as a 10 s motion has): a one-sentence motion streams early frames. It looks 35 steps
+    back, not the 48 its kernels span: the t - 18 taps of the dilation-9 blocks of the first two levels never lay
+    inside a 64-frame training window (8 and 16 positions), so they kept their zero start (train_vq_decoder)."""
     from t2m.service.engine.engine import OnnxEngine
 
     engine = OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
-    assert engine.reach == graph_reach(default_model / "decoder.onnx") == DecoderReach(ahead=25, behind=25)
-    assert engine.limits.max_tokens == 25 and engine.limits.details["streaming"]["lookahead_tokens"] == 25
+    assert engine.reach == graph_reach(default_model / "decoder.onnx") == DecoderReach(ahead=3, behind=35)
+    assert engine.limits.max_tokens == 25 and engine.limits.details["streaming"]["lookahead_tokens"] == 3
+    chunks, streamed, whole = _streamed(engine, [("a person walks forward", 10.0)])
+    assert len(chunks[0]) == 8 and len(chunks) >= 3
+    assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
 
 
 def test_the_random_bundle_reach_is_its_graph_bound(onnx_engine, random_bundle):
