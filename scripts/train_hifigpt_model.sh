@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # T2M-HiFiGPT (issue 16: a residual VQ-VAE at 8 frames per code + the double-tier GPT) trained on Bandai-Namco, sized
 # so that all stages take about 2 hours on this project's 2-core CPU machine: the exact commands that produced
-# the default bundle t2m/bundles/default (0.2.0) on 2026-11-25. Stages 1 and 2 ran with ONE thread beside the masked
-# model's continued training (scripts/train_masked_model.sh, 2b/3b) and helper work, so their wall times are upper
-# bounds; 2b ran alone on 2 threads. Run from
-# the repository root in the training environment; every stage writes progress, train.log, log.csv and curves.png in
-# its run directory and can be continued with --resume.
+# the default bundle t2m/bundles/default (0.2.0, 0.2.1, 0.3.0) on 2026-11-25. Stages 1 and 2 ran with ONE thread
+# beside the masked model's continued training (scripts/train_masked_model.sh, 2b/3b) and helper work, so their wall
+# times are upper bounds; 2b ran alone on 2 threads, 2c on one beside its control. Run from the repository root in
+# the training environment; every stage writes progress, train.log, log.csv and curves.png in its run directory and
+# can be continued with --resume.
 set -euo pipefail
 DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_gpt_model.sh, first command)
 RUNS="${RUNS:-runs}"
@@ -45,7 +45,7 @@ t2m train hifigpt --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/hifigpt" --steps 
 #     only past frames, so it looks 3 steps ahead instead of 25 and a one-sentence motion streams early frames; and
 #     64-frame windows of all 6 depths (no quantiser dropout: the GPT always gives 6), so its dilation-9 taps see
 #     real neighbours more often than in stage 1's 32-frame windows. Starts from stage 1's decoder (taps moved one
-#     into the past). 12000 steps, one thread beside a control run: ~30 min. The control (the same training without
+#     into the past). 12000 steps, one thread beside the control run: 26 min. The control (the same training without
 #     causal blocks, --no-causal-decoder-blocks --out "$RUNS/rvq_refit") separates what causality costs.
 t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --steps 12000 --batch-size 64 \
   --window 64 --lr 2e-4 --warmup-steps 200 --lr-milestones 0.7 --bone-weight 0.5 --balance-power 0.5 --log-every 50 \
@@ -59,8 +59,10 @@ t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --
 #    0.2.1: int8 text encoder AND step graphs (10 MB -> 2.7 MB each). Shipped by issue 17's rule, measured on the
 #    bundle as served (step 4b): Table 1 within the float32 export's intervals, the probes held, 2x faster. (0.2.0 was
 #    the same export with --int8 text only; its float32 step graphs reproduce PyTorch's rollout codes exactly.)
-t2m export --family hifigpt --vq "$RUNS/rvq" --hifigpt "$RUNS/hifigpt" --int8 text,temporal,residual \
-  --name t2m-bandai-hifigpt-minilm --version 0.2.1 --model-card docs/model_card_hifigpt.md -o t2m/bundles/default
+#    0.3.0: the same export with stage 2c's decoder (--vq rvq_causal; the step graphs and text encoder come out byte
+#    for byte as 0.2.1's: export is deterministic and the GPT and codebooks are the same).
+t2m export --family hifigpt --vq "$RUNS/rvq_causal" --hifigpt "$RUNS/hifigpt" --int8 text,temporal,residual \
+  --name t2m-bandai-hifigpt-minilm --version 0.3.0 --model-card docs/model_card_hifigpt.md -o t2m/bundles/default
 t2m index-captions t2m/bundles/default --data "$DATA"
 python scripts/share_bundle_files.py      # the gpt and masked bundles link the default's text files
 
@@ -69,6 +71,8 @@ python scripts/share_bundle_files.py      # the gpt and masked bundles link the 
 #    root-relative MPJPE is the residual VQ's (the goal: <= 15 mm; the 1-layer VQ: 42 mm). Generation runs the
 #    service's loop (t2m.decoding.hifigpt) at the crops' lengths, guidance 1 and 3 on code logits.
 #    Guidance 1 was left out to fit the session.
+#    0.3.0 (and the control): the same with --vq "$RUNS/rvq_causal" (--vq "$RUNS/rvq_refit"), --out
+#    "$RUNS/eval_hifigpt_causal.md" ("$RUNS/eval_hifigpt_refit.md"), --threads 1: 1.8 min each.
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/rvq" --hifigpt "$RUNS/hifigpt" \
   --guidance 3 --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --text-cache "$TEXT" --threads 2 \
   --out "$RUNS/eval_hifigpt2.md"
