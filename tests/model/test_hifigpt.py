@@ -5,12 +5,10 @@ from __future__ import annotations
 
 import csv
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from synthetic_motion_data import make_dataset
 
 from t2m.cli.main import main
 from t2m.model.hifigpt_sampling import sample_code_maps
@@ -107,11 +105,6 @@ def test_reference_sampler_targets_free_lengths_and_seeds():
     assert np.array_equal(greedy[0], greedy[1])
     with pytest.raises(ValueError, match=r"target_tokens\[0\] must be in 1..8"):
         sample_code_maps(model, cond[:1], [9])
-
-
-@pytest.fixture(scope="module")
-def data_dir(tmp_path_factory) -> Path:
-    return make_dataset(tmp_path_factory.mktemp("motion_data"))
 
 
 COMMON = ["--steps", "3", "--batch-size", "4", "--log-every", "1", "--val-every", "3", "--save-every", "3",

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from synthetic_motion_data import make_dataset
 
 from t2m.cli.main import main
 from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
@@ -24,11 +23,6 @@ torch.set_num_threads(1)
 COMMON = ["--steps", "3", "--batch-size", "4", "--log-every", "1", "--val-every", "3", "--save-every", "3",
           "--threads", "1"]
 TINY = ["--latent", "32", "--heads", "2", "--layers", "1", "--ff-size", "64", "--max-tokens", "20"]
-
-
-@pytest.fixture(scope="module")
-def data_dir(tmp_path_factory) -> Path:
-    return make_dataset(tmp_path_factory.mktemp("motion_data"))
 
 
 @pytest.fixture(scope="module")

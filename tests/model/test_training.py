@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from synthetic_motion_data import make_dataset
 
 from t2m.model.data.datasets import TextMotionDataset, VQWindowDataset, open_split, precompute_codes
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
@@ -18,11 +17,6 @@ from t2m.model.training.loop import LoopSettings, infinite, lr_factor, run_train
 from t2m.model.training.train_gpt import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
 
 torch.set_num_threads(1)
-
-
-@pytest.fixture(scope="module")
-def data_dir(tmp_path_factory) -> Path:
-    return make_dataset(tmp_path_factory.mktemp("motion_data"))
 
 
 # --- GPT training ingredients ----------------------------------------------------------------------------------

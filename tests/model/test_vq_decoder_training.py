@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from synthetic_motion_data import make_dataset
 
 from t2m.model.networks.vqvae import MotionVQVAE, ResBlock, VQConfig
 from t2m.model.training.checkpoint import load_model
@@ -21,11 +20,6 @@ torch.set_num_threads(1)
 TINY = ["--width", "16", "--code-dim", "8", "--nb-code", "16", "--quantizer", "residual", "--residual-layers", "2"]
 FEW_STEPS = ["--steps", "3", "--batch-size", "4", "--log-every", "1", "--val-every", "3", "--save-every", "3",
              "--threads", "1"]
-
-
-@pytest.fixture(scope="module")
-def data_dir(tmp_path_factory) -> Path:
-    return make_dataset(tmp_path_factory.mktemp("motion_data"))
 
 
 @pytest.fixture(scope="module")
