@@ -66,22 +66,9 @@ def build_release_bundle(workdir: Path) -> Path:
     return out
 
 
-def weight_only(src: Path, dst: Path, bits: int, block: int = 32, accuracy_level: int | None = None) -> None:
-    """MatMulNBits: block-wise symmetric weights of `bits` bits. Accuracy level None/0: float32 activations (the
-    kernel dequantises; no integer products, so no saturation question); 4: activations quantised to int8."""
-    import onnx
-    from onnxruntime.quantization.matmul_nbits_quantizer import DefaultWeightOnlyQuantConfig, MatMulNBitsQuantizer
-
-    config = DefaultWeightOnlyQuantConfig(block_size=block, is_symmetric=True, bits=bits, accuracy_level=accuracy_level)
-    quantizer = MatMulNBitsQuantizer(onnx.load(str(src)), bits=bits, block_size=block, is_symmetric=True,
-                                     accuracy_level=accuracy_level, algo_config=config)
-    quantizer.process()
-    quantizer.model.save_model_to_file(str(dst), use_external_data_format=False)
-
-
 def variant_graph(bundle: Path, variant: str) -> Path:
     """The step graph of a variant, next to the bundle's float32 one (made once)."""
-    from t2m.export.quantize import quantize_graph
+    from t2m.export.quantize import quantize_graph, quantize_graph_int4, quantize_weights_nbits
 
     fp32 = bundle / "gpt_step.onnx"
     if variant == "float32":
@@ -92,9 +79,9 @@ def variant_graph(bundle: Path, variant: str) -> Path:
         if variant in ("int8-7bit", "int8-8bit"):
             quantize_graph(fp32, path, reduce_range=variant == "int8-7bit")
         elif variant == "int4-acc4":
-            weight_only(fp32, path, bits=4, block=128, accuracy_level=4)
+            quantize_graph_int4(fp32, path)
         else:
-            weight_only(fp32, path, bits=8 if variant == "wo-int8" else 4)
+            quantize_weights_nbits(fp32, path, bits=8 if variant == "wo-int8" else 4)
         print(f"- {variant}: quantised in {time.perf_counter() - start:.0f} s, {path.stat().st_size / 1e6:.0f} MB",
               flush=True)
     return path

@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("t2m.cli.commands.export", "export trained models to an ONNX bundle"),
     "import": ("t2m.cli.commands.importer", "import released checkpoints (T2M-GPT, MoMask) as a bundle"),
     "index-captions": ("t2m.cli.commands.index_captions", "index a bundle's training captions (unknown-text warnings)"),
+    "quantize": ("t2m.cli.commands.quantize", "quantise a GPT bundle's step graph (int8 or int4 weights)"),
     "bench": ("t2m.cli.commands.bench", "benchmark generation speed"),
     "serve": ("t2m.cli.commands.serve", "run the HTTP service"),
     "generate": ("t2m.cli.commands.generate", "generate a motion file without a server"),

@@ -1,4 +1,5 @@
-"""Optional int8 dynamic quantisation of the GPT step graph and the text encoder (onnxruntime.quantization).
+"""Optional int8 dynamic quantisation of the GPT step graph and the text encoder (onnxruntime.quantization), and
+opt-in int4 weights for a GPT step graph (MatMulNBits).
 
 Dynamic quantisation stores MatMul/Gemm weights as int8 and quantises activations on the fly, so
 it needs no calibration data: a 4x smaller file and faster MatMuls on CPU, at the price of small
@@ -50,6 +51,46 @@ def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) 
         root.setLevel(level)
         tmp.unlink(missing_ok=True)
     return dst
+
+
+INT4_BLOCK = 128   # weights per scale along the input dimension (T2M-GPT's 1024 and our 256/384 widths divide by it)
+
+
+def quantize_weights_nbits(src: str | Path, dst: str | Path, bits: int, block: int = 32,
+                           accuracy_level: int | None = None) -> Path:
+    """Write a copy of ``src`` whose MatMul weights are block-wise symmetric ``bits``-bit integers (MatMulNBits).
+
+    ``accuracy_level`` None/0: float32 activations (the kernel dequantises the weights); 4: activations quantised to
+    int8 per block and integer products (the fast path on CPUs)."""
+    import onnx
+    from onnxruntime.quantization.matmul_nbits_quantizer import DefaultWeightOnlyQuantConfig, MatMulNBitsQuantizer
+
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)  # the quantiser logs every node it skips at INFO
+    quant_logger = logging.getLogger("onnxruntime.quantization.matmul_nbits_quantizer")
+    quant_level = quant_logger.level
+    quant_logger.setLevel(logging.ERROR)
+    try:
+        config = DefaultWeightOnlyQuantConfig(block_size=block, is_symmetric=True, bits=bits,
+                                              accuracy_level=accuracy_level)
+        quantizer = MatMulNBitsQuantizer(onnx.load(str(src)), bits=bits, block_size=block, is_symmetric=True,
+                                         accuracy_level=accuracy_level, algo_config=config)
+        quantizer.process()
+        quantizer.model.save_model_to_file(str(dst), use_external_data_format=False)
+    finally:
+        root.setLevel(level)
+        quant_logger.setLevel(quant_level)
+    return Path(dst)
+
+
+def quantize_graph_int4(src: str | Path, dst: str | Path) -> Path:
+    """int4 weights with int8 compute (MatMulNBits, block 128, accuracy level 4): a quarter of int8's weight bytes
+    again, which is what a bandwidth-bound release-size step needs (benchmarks/int8_release_speed.py).
+
+    No 7-bit rule is needed: a 4-bit weight times an 8-bit activation cannot saturate the int16 pair sums of CPUs
+    without VNNI (2 x 255 x 8 < 32767)."""
+    return quantize_weights_nbits(src, dst, bits=4, block=INT4_BLOCK, accuracy_level=4)
 
 
 @dataclass

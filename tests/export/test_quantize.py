@@ -1,5 +1,6 @@
 """int8 dynamic quantisation: the graphs really get int8 weights, the bundle records it, and the report's numbers
-(logit difference, greedy agreement, text cosine) are measured against the float32 graphs."""
+(logit difference, greedy agreement, text cosine) are measured against the float32 graphs. The opt-in int4 step
+(`t2m quantize --scheme int4`): MatMulNBits weights, close to float32, a wrongly scaled copy caught."""
 from __future__ import annotations
 
 import json
@@ -13,7 +14,13 @@ from t2m.export.graph_export import ort_session
 from t2m.export.int8_bundle import quantize_bundle_gpt
 from t2m.export.onnx_gpt import export_gpt_step
 from t2m.export.parity import ort_greedy_rollout
-from t2m.export.quantize import GptInt8Report, gpt_int8_report, quantize_graph, text_int8_report
+from t2m.export.quantize import (
+    GptInt8Report,
+    gpt_int8_report,
+    quantize_graph,
+    quantize_graph_int4,
+    text_int8_report,
+)
 from t2m.export.random_bundle import build_random_bundle
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from tests.export.non_vnni import ReferenceSession
@@ -123,3 +130,67 @@ def test_minilm_int8_keeps_the_text_features(exported_runs, tmp_path):
     assert report.int8_bytes < 0.3 * report.fp32_bytes  # embeddings quantised too
     assert report.min_cosine > 0.98, report  # per-tensor scales would give ~0.955 here
     assert report.mean_cosine < 1.0  # quantisation changed something: the check is not comparing a graph to itself
+
+
+INT4_MAX_LOGIT_DIFF = 0.15   # int4 with int8 compute on these random GPTs: 0.07-0.10 (logits span about +-0.5)
+
+
+def _small_gpt_and_manifest(seed: int, embed: int = 128) -> tuple[MotionGPT, dict]:
+    torch.manual_seed(seed)
+    gpt = MotionGPT(GPTConfig(codebook_size=64, embed=embed, n_head=4, n_layer_base=2, n_layer_head=2,
+                              text_dim=32)).eval()
+    c = gpt.config
+    return gpt, {"gpt": {"n_layer": c.n_layer, "n_head": c.n_head, "head_dim": c.head_dim, "default_guidance": 3.0},
+                 "max_tokens": c.max_tokens, "end_id": c.end_id,
+                 "text_encoder": {"dim": c.text_dim, "normalize": True}}
+
+
+def _scale_every_int4_block(src, dst, factor: float) -> None:
+    """A wrongly quantised int4 graph: every MatMulNBits scale multiplied (15 / 7: scales computed for 3-bit instead
+    of 4-bit values, the kind of slip a changed bit width makes)."""
+    model = onnx.load(str(src))
+    weights = {init.name: init for init in model.graph.initializer}
+    for node in model.graph.node:
+        if node.op_type == "MatMulNBits":
+            scales = onnx.numpy_helper.to_array(weights[node.input[2]]) * factor
+            weights[node.input[2]].CopyFrom(onnx.numpy_helper.from_array(scales.astype(np.float32), node.input[2]))
+    onnx.save(model, str(dst))
+
+
+def test_int4_step_is_smaller_close_to_float32_and_a_wrongly_scaled_copy_is_caught(tmp_path):
+    """Greedy codes may part earlier than int8's (random weights have flat logits), so what is compared is the
+    logits while the codes agree: within INT4_MAX_LOGIT_DIFF, and far outside it for the control."""
+    gpt, manifest = _small_gpt_and_manifest(seed=0)
+    fp32 = export_gpt_step(gpt, tmp_path / "gpt_step.onnx")
+    int4 = quantize_graph_int4(fp32, tmp_path / "gpt_step.int4.onnx")
+    assert "MatMulNBits" in _op_types(int4) and "MatMulNBits" not in _op_types(fp32)
+    report = gpt_int8_report(fp32, int4, manifest, steps=20)
+    assert report.int8_bytes < 0.2 * report.fp32_bytes
+    assert 0 < report.max_abs_logit_diff < INT4_MAX_LOGIT_DIFF
+    _scale_every_int4_block(int4, tmp_path / "wrong.onnx", 15 / 7)
+    wrong = gpt_int8_report(fp32, tmp_path / "wrong.onnx", manifest, steps=20)
+    assert wrong.max_abs_logit_diff > 2 * INT4_MAX_LOGIT_DIFF, wrong
+
+
+def test_quantize_cli_writes_a_served_int4_copy_and_refuses_what_it_cannot_do(tmp_path, capsys):
+    from t2m.cli.main import main
+    from t2m.service.engine.engine import OnnxEngine
+    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+    src = build_random_bundle(tmp_path / "fp32", codebook_size=16, embed=32, n_head=2, n_layer=2)
+    assert main(["quantize", str(src), "-o", str(tmp_path / "int4"), "--scheme", "int4", "--version", "0.0.2"]) == 0
+    manifest = json.loads((tmp_path / "int4" / "manifest.json").read_text())
+    assert manifest["quantization"]["gpt_step"] == "int4-matmulnbits" and manifest["version"] == "0.0.2"
+    assert "MatMulNBits" in _op_types(tmp_path / "int4" / "gpt_step.onnx")
+    request = GenerationRequest(segments=[SegmentRequest("a person walks", 1.0)], seed=3, guidance=3.0)
+    motion = OnnxEngine.load(tmp_path / "int4", intra_op_threads=1).generate(request)
+    assert motion.joints.shape[0] == 20 and np.isfinite(motion.joints).all()
+    capsys.readouterr()
+    for argv, message in (
+        ([str(tmp_path / "int4"), "-o", str(tmp_path / "twice"), "--scheme", "int4"], "already int4-matmulnbits"),
+        ([str(tmp_path / "none"), "-o", str(tmp_path / "x")], "no manifest.json"),
+        ([str(src), "-o", str(src)], "-o must differ"),
+    ):
+        assert main(["quantize", *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1
