@@ -13,7 +13,8 @@ depends on sizes, not values. Step graphs timed (all the imported graph, quantis
   this onnxruntime has it;
 - int4 weights, int8 compute: MatMulNBits 4-bit, block 128, accuracy level 4 (activations quantised to int8 per
   block, integer dot products). 4-bit weights cannot saturate a 16-bit pair sum (2 x 127 x 8), so no 7-bit rule is
-  needed; NOT shipped: int4, and its quality is unmeasured (random weights here, no trained release).
+  needed; opt-in (`t2m quantize --scheme int4`): no bundle here ships it, and its quality on a trained release is
+  unmeasurable here (random weights, no release weights); on the trained GPT model, see README.
 
 Each step graph runs the service's own loop shape: `position` 0..tokens-1 with the KV cache, greedy choice; the
 reference recomputes the whole prefix with MotionGPT.forward every token (T2M-GPT's sample loop, as `t2m bench`).
@@ -51,7 +52,7 @@ LABELS = {
     "int8-8bit": "int8 MatMulInteger, 8-bit weights (not shippable)",
     "wo-int8": "weight-only int8 MatMulNBits (block 32)",
     "wo-int4": "weight-only int4 MatMulNBits (block 32)",
-    "int4-acc4": "int4 weights, int8 compute: MatMulNBits block 128, accuracy level 4 (not shipped)",
+    "int4-acc4": "int4 weights, int8 compute: MatMulNBits block 128, accuracy level 4 (opt-in: t2m quantize)",
     "eager": "PyTorch eager, prefix recomputed (reference)",
 }
 
