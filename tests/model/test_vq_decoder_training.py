@@ -102,8 +102,14 @@ def test_a_token_model_of_the_old_codes_is_accepted_with_the_new_decoder_and_ano
     assert codes_source(decoder_run) == vq_run.resolve()
     check_trained_on(token_run, vq_run)
     check_trained_on(token_run, decoder_run)
+    on_decoder_run = tmp_path / "trained_with_the_decoder_run"
+    on_decoder_run.mkdir()
+    (on_decoder_run / "config.json").write_text(json.dumps({"kind": "hifigpt", "config": {}, "data": {
+        "vq_run": str(decoder_run.resolve())}}))
+    check_trained_on(on_decoder_run, vq_run)
     other = tmp_path / "other_vq"
     assert main(["train", "vq", "--data", str(data_dir), "--out", str(other), *TINY, *FEW_STEPS[:2],
                  "--threads", "1"]) == 0
-    with pytest.raises(ValueError, match="trained on the codes of"):
-        check_trained_on(token_run, other)
+    for run in (token_run, on_decoder_run):
+        with pytest.raises(ValueError, match="trained on the codes of"):
+            check_trained_on(run, other)

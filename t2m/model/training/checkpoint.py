@@ -105,9 +105,10 @@ def codes_source(vq_run: str | Path) -> Path:
 
 def check_trained_on(token_run: str | Path, vq_run: str | Path) -> None:
     """A token model (GPT, masked, residual, HiFiGPT) learned one VQ's codes: refuse a VQ that gives other codes
-    (when the recorded VQ run still exists); a new decoder on the same codes is accepted."""
+    (when the recorded VQ run still exists); a new decoder on the same codes is accepted, whichever of the two the
+    token model was trained with."""
     recorded = read_run_config(token_run).get("data", {}).get("vq_run")
-    if recorded and Path(recorded).exists() and Path(recorded).resolve() != codes_source(vq_run):
+    if recorded and Path(recorded).exists() and codes_source(recorded) != codes_source(vq_run):
         raise ValueError(f"{token_run}: trained on the codes of {recorded}, not of --vq {vq_run}")
 
 
