@@ -13,6 +13,8 @@ import logging
 import os
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,20 @@ import numpy as np
 # Per-channel weight scales matter: on all-MiniLM-L6-v2, per-tensor int8 gives cosine 0.955 to the float32
 # features, per-channel 0.992 (8 motion captions; measured with text_int8_report).
 QUANTIZED_OPS = ["MatMul", "Gemm", "Gather"]
+
+
+@contextmanager
+def _quiet_logging(*names: str) -> Iterator[None]:
+    """Raise the named loggers ("" = root) to ERROR for the block: onnxruntime's quantisers are chatty."""
+    loggers = [logging.getLogger(name or None) for name in names]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)
 
 
 def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) -> Path:
@@ -39,16 +55,13 @@ def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) 
     handle, tmp_name = tempfile.mkstemp(suffix=".onnx", dir=dst.parent)
     os.close(handle)
     tmp = Path(tmp_name)
-    root = logging.getLogger()
-    level = root.level
-    root.setLevel(logging.ERROR)  # quantize_dynamic logs a pre-processing hint on the root logger at WARNING
     try:
-        quantize_dynamic(src, tmp, op_types_to_quantize=QUANTIZED_OPS, weight_type=QuantType.QInt8,
-                         per_channel=True, reduce_range=reduce_range, extra_options={"MatMulConstBOnly": True})
+        with _quiet_logging(""):  # quantize_dynamic logs a pre-processing hint on the root logger at WARNING
+            quantize_dynamic(src, tmp, op_types_to_quantize=QUANTIZED_OPS, weight_type=QuantType.QInt8,
+                             per_channel=True, reduce_range=reduce_range, extra_options={"MatMulConstBOnly": True})
         tmp.chmod(0o644)  # mkstemp makes 0600 files; bundle files are world-readable like the others
         tmp.replace(dst)
     finally:
-        root.setLevel(level)
         tmp.unlink(missing_ok=True)
     return dst
 
@@ -65,31 +78,24 @@ def quantize_weights_nbits(src: str | Path, dst: str | Path, bits: int, block: i
     import onnx
     from onnxruntime.quantization.matmul_nbits_quantizer import DefaultWeightOnlyQuantConfig, MatMulNBitsQuantizer
 
-    root = logging.getLogger()
-    level = root.level
-    root.setLevel(logging.ERROR)  # the quantiser logs every node it skips at INFO
-    quant_logger = logging.getLogger("onnxruntime.quantization.matmul_nbits_quantizer")
-    quant_level = quant_logger.level
-    quant_logger.setLevel(logging.ERROR)
-    try:
+    # the quantiser logs every node it skips at INFO, on its own logger and the root one
+    with _quiet_logging("", "onnxruntime.quantization.matmul_nbits_quantizer"):
         config = DefaultWeightOnlyQuantConfig(block_size=block, is_symmetric=True, bits=bits,
                                               accuracy_level=accuracy_level)
         quantizer = MatMulNBitsQuantizer(onnx.load(str(src)), bits=bits, block_size=block, is_symmetric=True,
                                          accuracy_level=accuracy_level, algo_config=config)
         quantizer.process()
         quantizer.model.save_model_to_file(str(dst), use_external_data_format=False)
-    finally:
-        root.setLevel(level)
-        quant_logger.setLevel(quant_level)
     return Path(dst)
 
 
 def quantize_graph_int4(src: str | Path, dst: str | Path) -> Path:
-    """int4 weights with int8 compute (MatMulNBits, block 128, accuracy level 4): a quarter of int8's weight bytes
-    again, which is what a bandwidth-bound release-size step needs (benchmarks/int8_release_speed.py).
+    """int4 weights with int8 compute (MatMulNBits, block 128, accuracy level 4): about half of int8's weight bytes
+    (126 against 230 MB at T2M-GPT's release size), which is what a bandwidth-bound step needs
+    (benchmarks/int8_release_speed.py).
 
     No 7-bit rule is needed: a 4-bit weight times an 8-bit activation cannot saturate the int16 pair sums of CPUs
-    without VNNI (2 x 255 x 8 < 32767)."""
+    without VNNI (at most 2 x 255 x 8 = 4080 < 32767)."""
     return quantize_weights_nbits(src, dst, bits=4, block=INT4_BLOCK, accuracy_level=4)
 
 
