@@ -40,7 +40,7 @@ def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
             before, after = attributes["pads"]
             length = (len(first) + before + after - dilation * (kernel - 1) - 1) // stride + 1
             weight = constants[node.input[1]]
-            used = weight.reshape(-1, kernel).any(axis=0) if weight.shape[-1] == kernel else np.ones(kernel, bool)
+            used = weight.reshape(-1, kernel).any(axis=0)   # Conv1d weights are [out, in, kernel]
             taps = np.arange(length)[:, None] * stride - before + np.arange(kernel)[None] * dilation
             inside = (taps >= 0) & (taps < len(first)) & used[None]
             clipped = np.clip(taps, 0, len(first) - 1)
