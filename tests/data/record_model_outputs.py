@@ -3,11 +3,13 @@
 tests/data/gpt_model_outputs.npz: the 1-layer GPT (t2m/bundles/gpt, the default up to 0.4.0), recorded before the
 0.4.0 restructuring (package moved under t2m/, one bundle contract, sampler split);
 tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded again for its 0.3.0 (a new decoder on the same
-codes: the same spans, other joints).
+codes: the same spans, other joints);
+tests/data/masked_model_outputs.npz: the masked-family model, recorded before the family seam (issue 24) was built.
 Re-record only when that model itself changes:
 
     python tests/data/record_model_outputs.py t2m/bundles/default tests/data/default_model_outputs.npz
     python tests/data/record_model_outputs.py t2m/bundles/gpt tests/data/gpt_model_outputs.npz
+    python tests/data/record_model_outputs.py t2m/bundles/masked tests/data/masked_model_outputs.npz
 """
 from __future__ import annotations
 

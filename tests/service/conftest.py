@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))   # tests/service/fakes
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_MODEL = REPO / "t2m" / "bundles" / "default"      # T2M-HiFiGPT after 0.4.0
 GPT_MODEL = REPO / "t2m" / "bundles" / "gpt"              # the 1-layer GPT, the default up to 0.4.0
+MASKED_MODEL = REPO / "t2m" / "bundles" / "masked"        # the masked family (MoGenTS-style joint tokens)
 
 
 @pytest.fixture(scope="session")
@@ -110,6 +111,14 @@ def gpt_model() -> Path:
     if not (GPT_MODEL / "manifest.json").is_file():
         pytest.skip(f"the embedded GPT model is not committed ({GPT_MODEL / 'manifest.json'} is absent)")
     return GPT_MODEL
+
+
+@pytest.fixture(scope="session")
+def masked_model() -> Path:
+    """The embedded masked-family model."""
+    if not (MASKED_MODEL / "manifest.json").is_file():
+        pytest.skip(f"the embedded masked model is not committed ({MASKED_MODEL / 'manifest.json'} is absent)")
+    return MASKED_MODEL
 
 
 def wait_ready(client, timeout_s: float = 20.0) -> None:

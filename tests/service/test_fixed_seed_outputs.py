@@ -3,7 +3,8 @@
 The GPT model's recording (tests/data/gpt_model_outputs.npz, by tests/data/record_model_outputs.py) was made with the
 code as it was before the package moved under t2m/; on the recording machine the joints came out bit-identical
 after it (sha256 in CHANGELOG.md). The default T2M-HiFiGPT model's (tests/data/default_model_outputs.npz) was
-recorded when it became the default. Across CPUs onnxruntime may differ in the last float bits, hence the tolerance;
+recorded when it became the default; the masked model's (tests/data/masked_model_outputs.npz) before the
+family seam (issue 24) was built. Across CPUs onnxruntime may differ in the last float bits, hence the tolerance;
 segment spans (token counts, End decisions) must match exactly.
 """
 from __future__ import annotations
@@ -21,7 +22,8 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 @pytest.mark.parametrize("model, recording", [("gpt_model", "gpt_model_outputs.npz"),
-                                              ("default_model", "default_model_outputs.npz")])
+                                              ("default_model", "default_model_outputs.npz"),
+                                              ("masked_model", "masked_model_outputs.npz")])
 def test_model_outputs_match_the_recording(model, recording, request):
     from t2m.service.engine.engine import OnnxEngine
 
