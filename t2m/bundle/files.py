@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from t2m.bundle.errors import BundleError
-from t2m.bundle.manifest import MANIFEST_NAME, REQUIRED_FILES
+from t2m.bundle.manifest import MANIFEST_NAME
 
 __all__ = ["check_files", "files_table", "sha256_of"]
 
@@ -28,8 +28,8 @@ def files_table(bundle_dir: Path, names: Iterable[str]) -> dict[str, dict[str, A
 
 
 def check_files(bundle_dir: Path, files: Mapping[str, Any], *, check_hashes: bool = True,
-                required: Iterable[str] = REQUIRED_FILES) -> None:
-    """Every required file present and listed (`required`: the GPT's table by default; a masked manifest's come from
+                required: Iterable[str] = ()) -> None:
+    """Every required file present and listed (`required`: the manifest's family's
     `required_files(manifest)`); every listed file inside the bundle with its size (and sha256)."""
     for name in required:
         if not (bundle_dir / name).is_file():

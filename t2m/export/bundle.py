@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from t2m.bundle import FORMAT_VERSION, MANIFEST_NAME, OPTIONAL_FILES, REQUIRED_FILES, BundleError, files_table
+from t2m.bundle import COMMON_FILES, FORMAT_VERSION, MANIFEST_NAME, OPTIONAL_FILES, BundleError, files_table
 from t2m.export.verify import verify_bundle
 from t2m.motion.constants import FPS
 
@@ -58,7 +58,7 @@ def check_out_dir(out_dir: str | Path) -> Path:
 def prepare_out_dir(out_dir: str | Path) -> Path:
     """Create ``out_dir`` after :func:`check_out_dir`, removing an earlier bundle's files."""
     out_dir = check_out_dir(out_dir)
-    for name in [MANIFEST_NAME, *(_old_bundle_files(out_dir) or []), *REQUIRED_FILES, *OPTIONAL_FILES]:
+    for name in [MANIFEST_NAME, *(_old_bundle_files(out_dir) or []), *COMMON_FILES, *OPTIONAL_FILES]:
         target = out_dir / name
         if target.is_file():
             target.unlink()

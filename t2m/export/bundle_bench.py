@@ -89,16 +89,8 @@ def bench_engine(engine: OnnxEngine, segments: Sequence[tuple[str, float]], repe
 
 
 def describe(engine: OnnxEngine) -> str:
-    manifest = engine.bundle.manifest
-    if manifest.family == "masked" and manifest.masked is not None:
-        m = manifest.masked
-        return (f"masked: {m.columns} column(s) x {manifest.residual_layers} layers, {m.steps} steps, guidance "
-                f"{m.guidance:g} / residual {m.residual_guidance:g}")
-    if manifest.family == "hifigpt" and manifest.hifigpt is not None:
-        h = manifest.hifigpt
-        return (f"hifigpt: 1 temporal + {manifest.residual_layers} residual steps per {manifest.frames_per_token} "
-                f"frames ({h.n_layer_temporal} + {h.n_layer_residual} layers), guidance {engine.limits.guidance():g}")
-    return f"gpt: 1 code per step, guidance {engine.limits.guidance():g}"
+    """How the model decodes, in its family's words."""
+    return engine.family.describe(engine.bundle.manifest, engine.limits.guidance())
 
 
 def run_bundle_bench(bundles: Sequence[Path], repeats: int = 5, threads: int | None = None,

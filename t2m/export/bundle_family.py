@@ -1,7 +1,8 @@
-"""`t2m eval --bundle DIR`: Table 1 for exactly what a GPT or T2M-HiFiGPT bundle serves, without its training runs.
+"""`t2m eval --bundle DIR`: Table 1 for exactly what a bundle serves, without its training runs (families whose
+served object samples lockstep jobs of exact lengths: `evaluates_bundle`, the GPT and T2M-HiFiGPT).
 
-The family's codes come from the service's own lockstep loop (t2m.service.engine.gpt_codes / hifigpt_codes over
-t2m.decoding.gpt / hifigpt) stepping the bundle's step graphs, its text features from the bundle's tokenizer +
+The family's codes come from the service's own loop (the family's served object, e.g. t2m.service.engine.gpt_codes
+over t2m.decoding.gpt) stepping the bundle's step graphs, its text features from the bundle's tokenizer +
 text_encoder.onnx, and the motions from its decoder.onnx, all loaded by the service's loader (hashes checked). So an
 int8 graph is measured as served. A bundle has no VQ encoder: the evaluation has no VQ-reconstruction row (and no
 "real crops' VQ codes" stream row).
@@ -29,11 +30,17 @@ class BundleLockstepFamily:
     batch_by_length = False
 
     def __init__(self, codes: Any, max_tokens: int, path: str, name: str = "gpt") -> None:
-        self._codes = codes        # the engine's GptCodes or HiFiGPTCodes
+        self._codes = codes        # the family's served object (t2m.service.engine.family_codes.FamilyCodes)
         self.name = name
         self.max_tokens = max_tokens
         self.paths = {"bundle": path}
         self.settings: dict[str, Any] = {}
+        self.labels = {"bundle": "served bundle"}
+        self.joined = "codes concatenated"
+
+
+    def report_note(self) -> str:
+        return ""
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:
@@ -62,24 +69,23 @@ class BundleDecoder:
 
 def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, threads: int = 1) -> Models:
     """The evaluator and a served GPT or T2M-HiFiGPT bundle (its text graph, step graphs and decoder in onnxruntime)."""
+    from t2m.bundle import get_family, iter_families
     from t2m.model.training.checkpoint import load_model
     from t2m.service.engine.bundle import load_bundle
-    from t2m.service.engine.gpt_codes import GptCodes
-    from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
     from t2m.service.engine.text import TextEncoder, load_tokenizer
 
     bundle = load_bundle(bundle_dir, intra_op_threads=threads)
     manifest = bundle.manifest
-    lockstep_codes = {"gpt": GptCodes, "hifigpt": HiFiGPTCodes}
-    if manifest.family not in lockstep_codes:
-        raise ValueError(f"{bundle_dir}: --bundle evaluates GPT and T2M-HiFiGPT bundles; this one is "
+    model_family = get_family(manifest.family)
+    if not model_family.evaluates_bundle:
+        which = [family.name for family in iter_families() if family.evaluates_bundle]
+        raise ValueError(f"{bundle_dir}: --bundle evaluates bundles of the families {which}; this one is "
                          f"{manifest.family!r}")
     evaluator = load_model(evaluator_run, expect_kind="evaluator")
     if evaluator.config.feature_dim != manifest.feature_dim:
         raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, bundle "
                          f"{manifest.feature_dim}")
-    family = BundleLockstepFamily(lockstep_codes[manifest.family](bundle), manifest.max_tokens, str(bundle_dir),
-                                  manifest.family)
+    family = BundleLockstepFamily(model_family.serve(bundle), manifest.max_tokens, str(bundle_dir), manifest.family)
     text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
     return Models(evaluator, None, family, bundle.mean.astype(np.float32), bundle.std.astype(np.float32),
                   evaluator_text=evaluator.config.text_encoder,

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.bundle.manifest import branch_graphs
+from t2m.bundle.graphs import branch_graphs
 from t2m.export.bundle import (
     check_out_dir,
     max_seconds,

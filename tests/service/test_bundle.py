@@ -48,8 +48,9 @@ def _cast_graph(input_name: str, input_shape: list, output_name: str) -> onnx.Mo
 
 def test_the_random_bundle_loads(random_bundle):
     bundle = load_bundle(random_bundle)
-    assert bundle.manifest.codebook_size == 32 and bundle.manifest.end_id == 32
-    assert bundle.gpt_has_length_input and bundle.manifest.length_conditioning
+    assert bundle.manifest.codebook_size == 32 and bundle.manifest.settings.end_id == 32
+    inputs = [tensor.name for tensor in bundle.sessions["gpt_step.onnx"].get_inputs()]
+    assert "length" in inputs and bundle.manifest.length_conditioning
     assert bundle.mean.shape == (263,)
 
 

@@ -47,7 +47,7 @@ def test_the_bundle_states_its_family_graphs_and_parity(hifigpt_bundle):
     assert {"temporal_step.onnx", "residual_step.onnx", "decoder.onnx"} <= set(raw["files"])
     assert "gpt_step.onnx" not in raw["files"]
     manifest = read_manifest(hifigpt_bundle)
-    assert manifest.hifigpt is not None and manifest.gpt is None
+    assert manifest.family == "hifigpt" and type(manifest.settings).__name__ == "HiFiGPTSettings"
     assert manifest.default_guidance == 3.0 and manifest.length_conditioning and manifest.unconditional_branch
     card = (hifigpt_bundle / "MODEL_CARD.md").read_text()
     assert "codes and stops identical True" in card

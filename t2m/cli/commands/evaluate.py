@@ -7,9 +7,15 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from t2m.bundle import ModelFamily
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from t2m.bundle import iter_families
+
     parser = subparsers.add_parser(
         "eval", help="evaluate a VQ-VAE + GPT (or masked family) with a trained evaluator (R-precision, FID, ...)",
         description="Reports on a split, laid out like the papers' Table 1: Real motion, VQ reconstruction and "
@@ -26,19 +32,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--bundle", default=None,
                         help="a served GPT or T2M-HiFiGPT bundle instead of runs (no --vq): evaluates what the "
                              "service runs")
-    parser.add_argument("--gpt", default=None, help="GPT run directory (the GPT family)")
-    parser.add_argument("--masked", default=None, help="masked transformer run directory (the masked family)")
-    parser.add_argument("--hifigpt", default=None, help="double-tier GPT run directory (T2M-HiFiGPT)")
-    parser.add_argument("--residual", default=None,
-                        help="masked family: residual transformer run (without it only the first quantiser layer "
-                             "is generated)")
-    parser.add_argument("--length", default=None,
-                        help="masked family: length estimator run; adds rows generated at its estimated lengths")
-    parser.add_argument("--steps", type=int, default=None, help="masked family: re-masking steps (default 10)")
-    parser.add_argument("--residual-guidance", type=float, default=None,
-                        help="masked family: the residual stage's guidance scale (default 5, MoMask's)")
-    parser.add_argument("--residual-top-k", type=int, default=None,
-                        help="masked family: the residual stage's top-k (default: all codes)")
+    owners: dict[str, list[argparse.Action]] = {}
+    for family in iter_families():
+        if family.eval_run_option is None:
+            continue
+        before = len(parser._actions)
+        parser.add_argument(f"--{family.eval_run_option}", default=None, metavar="RUN",
+                            help=f"token model run directory: {family.title}")
+        family.add_eval_arguments(parser)
+        owners[family.name] = parser._actions[before + 1:]
     parser.add_argument("--split", default="test", help="split to evaluate on (default test)")
     parser.add_argument("--repeats", type=int, default=20, help="evaluations averaged, as the papers do (default 20)")
     parser.add_argument("--guidance", type=float, nargs="+", default=None,
@@ -63,47 +65,41 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--threads", type=int, default=1,
                         help="torch CPU threads (default 1: on shared cores more threads mostly wait for each other)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.set_defaults(func=_evaluate)
+    parser.set_defaults(func=_evaluate, family_options=owners)
 
 
-DEFAULT_GUIDANCE = {"gpt": [1.0, 3.0], "masked": [1.0, 4.0], "hifigpt": [1.0, 3.0], "bundle": [1.0, 3.0]}
-TOKEN_RUNS = ("gpt", "masked", "hifigpt")
-MASKED_OPTIONS = ("steps", "residual_guidance", "residual_top_k")   # MaskedSettings fields set from the CLI
-MASKED_RUNS = ("residual", "length")
-
-
-def _family(args: argparse.Namespace) -> str:
-    """The family ("gpt", "masked" or "hifigpt") from the token run given; the masked family's options are refused
-    for the others."""
+def _family(args: argparse.Namespace) -> ModelFamily | None:
+    """The family whose run option was given (None: --bundle DIR); another family's options are refused."""
+    from t2m.bundle import get_family, iter_families
     from t2m.cli.main import CliError
 
-    given = [name for name in TOKEN_RUNS if getattr(args, name) is not None]
+    families = [family for family in iter_families() if family.eval_run_option is not None]
+    given = [family for family in families if getattr(args, str(family.eval_run_option)) is not None]
+    runs = "/".join(f"--{family.eval_run_option}" for family in families)
+    chosen = given[0] if len(given) == 1 else None
+    for name, actions in args.family_options.items():
+        for action in actions:
+            if getattr(args, action.dest) is not None and (chosen is None or chosen.name != name):
+                what = "--bundle" if args.bundle is not None else f"--{chosen.eval_run_option}" if chosen else None
+                if what is not None:
+                    owner = get_family(name)
+                    raise CliError(f"{action.option_strings[0]} applies to the {owner.name} family "
+                                   f"(--{owner.eval_run_option}), not to {what}")
     if args.bundle is not None:
         if given or args.vq is not None:
-            raise CliError("--bundle replaces --vq and the token runs: give either --bundle DIR or --vq with one of "
-                           "--gpt/--masked/--hifigpt")
-        for name in (*MASKED_RUNS, *MASKED_OPTIONS):
-            if getattr(args, name) is not None:
-                raise CliError(f"--{name.replace('_', '-')} applies to the masked family (--masked), not to --bundle")
-        return "bundle"
+            raise CliError(f"--bundle replaces --vq and the token runs: give either --bundle DIR or --vq with one of "
+                           f"{runs}")
+        return None
     if args.vq is None:
         raise CliError("give --vq VQ_RUN with the token run (or --bundle DIR)")
-    if len(given) != 1:
-        raise CliError("give exactly one of --gpt RUN (GPT family), --masked RUN (masked family) or --hifigpt RUN "
-                       "(T2M-HiFiGPT)")
-    if given[0] != "masked":
-        for name in (*MASKED_RUNS, *MASKED_OPTIONS):
-            if getattr(args, name) is not None:
-                raise CliError(f"--{name.replace('_', '-')} applies to the masked family (--masked), not to "
-                               f"--{given[0]}")
-        return given[0]
-    if args.steps is not None and args.steps < 1:
-        raise CliError(f"--steps must be at least 1, got {args.steps}")
-    if args.residual_top_k is not None and args.residual_top_k < 1:
-        raise CliError(f"--residual-top-k must be at least 1, got {args.residual_top_k}")
-    if args.residual_guidance is not None and args.residual_guidance < 0:
-        raise CliError(f"--residual-guidance must be >= 0, got {args.residual_guidance}")
-    return "masked"
+    if chosen is None:
+        raise CliError("give exactly one of " + ", ".join(f"--{family.eval_run_option} RUN ({family.name} family)"
+                                                          for family in families))
+    try:
+        chosen.check_eval_arguments(args)
+    except ValueError as error:
+        raise CliError(str(error)) from None
+    return chosen
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -120,18 +116,10 @@ def _evaluate(args: argparse.Namespace) -> int:
     import torch
 
     from t2m.model.data.motion_data import MotionDirectory
-    from t2m.model.evaluation.evaluate import (
-        EvalOptions,
-        evaluate,
-        load_hifigpt_models,
-        load_masked_models,
-        load_models,
-        write_report,
-    )
-    from t2m.model.evaluation.masked_family import MaskedSettings
+    from t2m.model.evaluation.evaluate import EvalOptions, evaluate, write_report
 
     torch.set_num_threads(args.threads)
-    guidance = args.guidance or DEFAULT_GUIDANCE[family]
+    guidance = args.guidance or (family.default_eval_guidance if family is not None else (1.0, 3.0))
     options = EvalOptions(split=args.split, repeats=args.repeats, guidance=tuple(guidance), seed=args.seed,
                           limit=args.limit, temperature=args.temperature, top_k=args.top_k, mm_texts=args.mm_texts,
                           mm_repeats=args.mm_repeats, streams=args.streams, batch_size=args.batch_size,
@@ -139,19 +127,12 @@ def _evaluate(args: argparse.Namespace) -> int:
     options.check()
     started = time.time()
     reader = MotionDirectory(args.data, args.split)
-    if family == "bundle":
+    if family is None:
         from t2m.export.bundle_family import load_bundle_models
 
         models = load_bundle_models(args.evaluator, args.bundle, threads=args.threads)
-    elif family == "gpt":
-        models = load_models(args.evaluator, args.vq, args.gpt, reader.mean, reader.std)
-    elif family == "hifigpt":
-        models = load_hifigpt_models(args.evaluator, args.vq, args.hifigpt, reader.mean, reader.std)
     else:
-        settings = MaskedSettings(**{name: getattr(args, name) for name in MASKED_OPTIONS
-                                     if getattr(args, name) is not None})
-        models = load_masked_models(args.evaluator, args.vq, args.masked, args.residual, args.length, settings,
-                                    reader.mean, reader.std)
+        models = family.load_eval_models(args, reader.mean, reader.std)
     encoder_kwargs = {"clip": {"weights": args.clip_weights}} if args.clip_weights else None
     result = evaluate(models, reader, options, text_cache=args.text_cache, encoder_kwargs=encoder_kwargs)
     result["data"] = str(args.data)

@@ -112,13 +112,18 @@ def _run_release(release: str, importer, args: argparse.Namespace) -> int:
                                 heads=args.heads, name=args.name, version=args.version,
                                 check_parity=not args.skip_parity, allow_pickle=args.allow_pickle)
     print(json.dumps({"parity": checks.parity}, indent=2))
-    m = manifest["masked"]
-    branches = "".join(f", + branch {b['name']} (top-k {b['top_k']} / {b['residual_top_k']})"
-                       for b in m.get("branches", []))
-    print(f"imported {release} ({manifest['residual_layers']} quantiser layers, {m['steps']} steps, guidance "
-          f"{m['guidance']:g} / {m['residual_guidance']:g}, top-k {m['top_k']} / {m['residual_top_k']}{branches}, "
-          f"length estimator {'yes' if m['length_estimator'] else 'no'}) into {args.output} (verified)")
+    _report(release, manifest, args.output)
     return 0
+
+
+def _report(release: str, manifest: dict, output: Path) -> None:
+    """One line: what was imported, in its family's words, and where."""
+    from t2m.bundle import get_family, parse_manifest
+
+    typed = parse_manifest(manifest)
+    line = get_family(typed.family).describe(typed, typed.default_guidance)
+    print(f"imported {release} ({line}; {typed.residual_layers} quantiser layer(s), at most {typed.max_tokens} "
+          f"token rows) into {output} (verified)")
 
 
 def run_t2m_gpt(args: argparse.Namespace) -> int:
@@ -133,7 +138,5 @@ def run_t2m_gpt(args: argparse.Namespace) -> int:
         int8=args.int8, check_parity=not args.skip_parity, allow_pickle=args.allow_pickle,
     )
     print(json.dumps({"parity": checks.parity, "int8": checks.int8}, indent=2))
-    gpt = manifest["gpt"]
-    print(f"imported T2M-GPT ({gpt['n_layer']} layers, {gpt['n_head']} heads x {gpt['head_dim']}) into {args.output}"
-          " (verified)")
+    _report("T2M-GPT", manifest, args.output)
     return 0

@@ -473,6 +473,8 @@ def evaluate(models: Models, reader, options: EvalOptions, text_cache: str | Pat
               "repeats": runs, "summary": summarise(runs)}
     if models.family.settings:
         result["family"], result["decoding"] = models.family.name, models.family.settings
+    result["report"] = {"labels": {**MODEL_LABELS, **models.family.labels}, "joined": models.family.joined,
+                        "decoding": models.family.report_note()}
     return result
 
 
@@ -600,26 +602,16 @@ def _table(summary: dict[str, dict[str, list[float]]], rows: list[str], columns)
     return lines
 
 
-MODEL_LABELS = {"evaluator": "evaluator", "vq": "VQ", "gpt": "GPT", "masked": "masked transformer",
-                "residual": "residual transformer", "length": "length estimator", "hifigpt": "double-tier GPT",
-                "bundle": "served bundle"}
+MODEL_LABELS = {"evaluator": "evaluator", "vq": "VQ"}   # the family adds its runs' labels (CodeFamily.labels)
 
 
 def _models_line(result: dict[str, Any]) -> str:
-    """The runs evaluated; for the masked family and T2M-HiFiGPT also their decoding settings."""
-    runs = ", ".join(f"{MODEL_LABELS.get(name, name)} `{path}`" for name, path in result["models"].items())
-    line = f"Models: {runs}."
-    decoding = result.get("decoding")
-    if decoding and result.get("family") == "hifigpt":
-        line += (f" T2M-HiFiGPT decoding (t2m.decoding.hifigpt): {decoding['depth']} residual depths per time step, "
-                 "guidance on the code logits (the stop head is not consulted at the crops' lengths).")
-    elif decoding:
-        residual = (f"residual stage guidance {decoding['residual_guidance']:g}, top-k "
-                    f"{decoding['residual_top_k'] or 'off'}" if decoding.get("residual_stage")
-                    else "no residual stage (first quantiser layer only)")
-        line += (f" Masked decoding (t2m.decoding.masked): {decoding['steps']} re-masking steps, the guidance below is "
-                 f"the masked stage's; {residual}.")
-    return line
+    """The runs evaluated, and the family's note on its decoding settings."""
+    report = result.get("report", {})
+    labels = report.get("labels", MODEL_LABELS)
+    runs = ", ".join(f"{labels.get(name, name)} `{path}`" for name, path in result["models"].items())
+    note = report.get("decoding")
+    return f"Models: {runs}." + (f" {note}" if note else "")
 
 
 def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
@@ -650,7 +642,7 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
                       f"from the crops' lengths."]
     multi = [r for r in summary if r.startswith("multi_")] + [r for r in ("pasted", "pasted_codes") if r in summary]
     if multi:
-        joined = "token maps concatenated along time" if result.get("family") == "masked" else "codes concatenated"
+        joined = result.get("report", {}).get("joined", "codes concatenated")
         lines += ["", f"## Table 2: streams of {options['stream_sentences']} sentences (T2LM's multi-sentence metrics)",
                   "",
                   f"{counts['streams_per_repeat']} streams per repeat; each sentence generated for its own duration, "

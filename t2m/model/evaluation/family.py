@@ -17,12 +17,18 @@ class CodeFamily(Protocol):
     """A generator of VQ codes for text features: the GPT (t2m.model.evaluation.gpt_family) or the masked family
     (t2m.model.evaluation.masked_family)."""
 
-    name: str                      # "gpt" | "masked"
+    name: str                      # its model family's name (t2m.bundle.family)
     text_encoder: str              # the text features it is conditioned on ("minilm", "clip")
     max_tokens: int                # longest motion it generates, in tokens (4 frames each)
-    paths: dict[str, str]          # its runs, in report order ({"gpt": ...} or {"masked": ..., "residual": ...})
+    paths: dict[str, str]          # its runs, in report order (e.g. {"masked": ..., "residual": ...})
+    labels: dict[str, str]         # how the report names each of its runs
     settings: dict[str, Any]       # decoding settings beyond temperature/top-k/guidance, for the report
     batch_by_length: bool          # batch rows of similar lengths together (every step runs at the batch's longest)
+    joined: str                    # how a stream's sentences are joined before the one decode, for the report
+
+    def report_note(self) -> str:
+        """A sentence on its decoding settings for the report's Models line ("" if there is nothing to say)."""
+        ...
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:

@@ -24,6 +24,12 @@ class GptFamily:
         self.max_tokens = gpt.config.max_tokens
         self.paths = {"gpt": path}
         self.settings: dict[str, Any] = {}
+        self.labels = {"gpt": "GPT"}
+        self.joined = "codes concatenated"
+
+
+    def report_note(self) -> str:
+        return ""
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:

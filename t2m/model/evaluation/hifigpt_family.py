@@ -25,6 +25,13 @@ class HiFiGPTFamily:
         self.max_tokens = model.config.max_tokens
         self.paths = {"hifigpt": path}
         self.settings: dict[str, Any] = {"depth": model.config.depth}
+        self.labels = {"hifigpt": "double-tier GPT"}
+        self.joined = "codes concatenated"
+
+
+    def report_note(self) -> str:
+        return (f"T2M-HiFiGPT decoding (t2m.decoding.hifigpt): {self.settings['depth']} residual depths per time "
+                "step, guidance on the code logits (the stop head is not consulted at the crops' lengths).")
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:

@@ -68,6 +68,18 @@ class MaskedFamily:
         self.paths = paths
         self.decoding = settings
         self.settings: dict[str, Any] = asdict(settings) | {"residual_stage": residual is not None}
+        self.labels = {"masked": "masked transformer", "residual": "residual transformer",
+                       "length": "length estimator"}
+        self.joined = "token maps concatenated along time"
+
+
+    def report_note(self) -> str:
+        decoding = self.settings
+        residual = (f"residual stage guidance {decoding['residual_guidance']:g}, top-k "
+                    f"{decoding['residual_top_k'] or 'off'}" if decoding.get("residual_stage")
+                    else "no residual stage (first quantiser layer only)")
+        return (f"Masked decoding (t2m.decoding.masked): {decoding['steps']} re-masking steps, the guidance below is "
+                f"the masked stage's; {residual}.")
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:

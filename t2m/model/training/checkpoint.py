@@ -1,7 +1,7 @@
 """Model checkpoints as docs/contracts.md fixes them.
 
 ``<run_dir>/model.safetensors`` holds the module's state dict (persistent tensors only);
-``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|"hifigpt"|..., "config": {...}, "step": N, "data": {...}}``
+``<run_dir>/config.json`` = ``{"kind": "vq"|"gpt"|<a family's kind>, "config": {...}, "step": N, "data": {...}}``
 is enough to rebuild the module: :func:`load_model` does that.
 The training resume state (optimizer, schedule, RNG, quantiser EMA statistics) lives apart in resume.pt.
 """
@@ -20,16 +20,19 @@ if TYPE_CHECKING:
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
-# The masked family (issue 14): kind -> (module, model class, config class)
-MASKED_FAMILY = {
-    "joint_vq": ("t2m.model.networks.joint_vqvae", "JointVQVAE", "JointVQConfig"),
-    "masked": ("t2m.model.networks.masked_transformer", "MaskedTransformer", "TokenTransformerConfig"),
-    "residual": ("t2m.model.networks.residual_transformer", "ResidualTransformer", "TokenTransformerConfig"),
-    "length": ("t2m.model.networks.length_estimator", "LengthEstimator", "LengthEstimatorConfig"),
-}
-# every kind built from such a table: the masked family's and T2M-HiFiGPT's double-tier GPT (issue 16)
-TABLE_KINDS = {**MASKED_FAMILY, "hifigpt": ("t2m.model.networks.hifigpt", "HiFiGPT", "HiFiGPTConfig")}
-KINDS = ("vq", "gpt", "evaluator", *TABLE_KINDS)
+# the kinds written here by name; every model family adds the kinds of its own modules (ModelFamily.checkpoint_kinds)
+BUILT_IN_KINDS = ("vq", "gpt", "evaluator")
+
+
+def table_kinds() -> dict[str, tuple[str, str, str]]:
+    """kind -> (module, model class, config class) of every family's modules built from a table."""
+    from t2m.bundle import iter_families
+
+    return {kind: entry for family in iter_families() for kind, entry in family.checkpoint_kinds.items()}
+
+
+def kinds() -> tuple[str, ...]:
+    return (*BUILT_IN_KINDS, *table_kinds())
 
 
 def model_kind(model: nn.Module) -> str:
@@ -42,7 +45,7 @@ def model_kind(model: nn.Module) -> str:
         return "gpt"
     if type(model).__name__ == "MotionEvaluator":
         return "evaluator"
-    for kind, (module, class_name, _) in TABLE_KINDS.items():
+    for kind, (module, class_name, _) in table_kinds().items():
         if type(model).__module__ == module and type(model).__name__ == class_name:
             return kind
     raise ValueError(f"no checkpoint kind for {type(model).__name__}")
@@ -82,8 +85,8 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
     for field in ("kind", "config"):
         if field not in record:
             raise ValueError(f"{path}: missing field {field!r}")
-    if record["kind"] not in KINDS:
-        raise ValueError(f"{path}: kind must be one of {', '.join(KINDS)}, got {record['kind']!r}")
+    if record["kind"] not in kinds():
+        raise ValueError(f"{path}: kind must be one of {', '.join(kinds())}, got {record['kind']!r}")
     return record
 
 
@@ -126,10 +129,11 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
         from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
 
         return MotionEvaluator(EvaluatorConfig(**config))
-    if kind in TABLE_KINDS:
+    table = table_kinds()
+    if kind in table:
         import importlib
 
-        module_name, class_name, config_name = TABLE_KINDS[kind]
+        module_name, class_name, config_name = table[kind]
         module = importlib.import_module(module_name)
         return getattr(module, class_name)(getattr(module, config_name).from_dict(config))
     raise ValueError(f"unknown checkpoint kind {kind!r}")

@@ -2,8 +2,8 @@
 
 A bundle is all the service knows about a model, so everything the sampler relies on is checked here, once, at
 start-up: the manifest's fields, each listed file's size and sha256 (t2m.bundle), and each graph's declared inputs
-and outputs as onnxruntime sees them against the contract's signatures (t2m.bundle.expected_graphs), then the
-families this service can run.
+and outputs as onnxruntime sees them against the contract's signatures (t2m.bundle.expected_graphs), then what the
+family's served loop needs beyond the contract (its `check_servable`).
 """
 from __future__ import annotations
 
@@ -21,6 +21,8 @@ from t2m.bundle import (
     check_files,
     check_graph_io,
     expected_graphs,
+    family_names,
+    get_family,
     parse_manifest,
     read_manifest_dict,
     required_files,
@@ -35,23 +37,13 @@ _ORT_DTYPES = {"tensor(float)": "float32", "tensor(int64)": "int64", "tensor(int
                "tensor(float16)": "float16", "tensor(bool)": "bool"}
 
 
-SERVED_FAMILIES = ("gpt", "masked", "hifigpt")
-
-
 def _check_served_family(raw: dict) -> None:
     """Refuse a family this service has no decoding loop for before its family-specific fields are read."""
     family = raw.get("family", "gpt")
-    if family not in SERVED_FAMILIES:
-        raise BundleError(f"manifest.json: field 'family' must be one of {list(SERVED_FAMILIES)} (the families this "
-                          f"service runs), got {family!r}")
-
-
-def _check_family(manifest: Manifest) -> None:
-    """The decoding loops this service has: the GPT over one layer of codes, the masked family over token maps,
-    T2M-HiFiGPT over [steps, R] code maps."""
-    if manifest.family == "gpt" and manifest.residual_layers != 1:
-        raise BundleError(f"manifest.json: field 'residual_layers' is {manifest.residual_layers}; this service "
-                          "samples one code per step and serves single-layer bundles only")
+    known = family_names()
+    if family not in known:
+        raise BundleError(f"manifest.json: field 'family' must be one of {list(known)} (the families this service "
+                          f"runs), got {family!r}")
 
 
 def session_options(intra_op_threads: int = 0, inter_op_threads: int = 1) -> ort.SessionOptions:
@@ -83,15 +75,13 @@ def _check_session(session: ort.InferenceSession, file: str, manifest: Manifest)
 
 @dataclass
 class Bundle:
-    """A verified bundle: its manifest, its onnxruntime sessions and the tokenizer file. `gpt_session` is the GPT
-    family's step graph (None for the masked family); `sessions` holds every graph by file name."""
+    """A verified bundle: its manifest, its onnxruntime sessions and the tokenizer file; `sessions` holds every graph
+    by file name (the family's own graphs are read from there by its served object)."""
 
     path: Path
     manifest: Manifest
     text_session: ort.InferenceSession
-    gpt_session: ort.InferenceSession | None
     decoder_session: ort.InferenceSession
-    gpt_has_length_input: bool
     mean: np.ndarray
     std: np.ndarray
     sessions: dict[str, ort.InferenceSession] = field(default_factory=dict)
@@ -119,7 +109,7 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
     _check_served_family(raw)
     manifest = parse_manifest(raw)
     check_files(path, manifest.files, check_hashes=check_hashes, required=required_files(raw))
-    _check_family(manifest)
+    get_family(manifest.family).check_servable(manifest)
     options = session_options(intra_op_threads, inter_op_threads)
     sessions = {}
     for file in expected_graphs(raw):
@@ -127,7 +117,5 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
         _check_session(sessions[file], file, manifest)
     log.info("loaded bundle %s %s (%s) from %s", manifest.name, manifest.version, manifest.family, path)
     return Bundle(path=path, manifest=manifest, text_session=sessions["text_encoder.onnx"],
-                  gpt_session=sessions.get("gpt_step.onnx"), decoder_session=sessions["decoder.onnx"],
-                  gpt_has_length_input=manifest.gpt is not None and manifest.length_conditioning,
-                  mean=_load_array(path / "mean.npy", manifest), std=_load_array(path / "std.npy", manifest),
-                  sessions=sessions)
+                  decoder_session=sessions["decoder.onnx"], mean=_load_array(path / "mean.npy", manifest),
+                  std=_load_array(path / "std.npy", manifest), sessions=sessions)

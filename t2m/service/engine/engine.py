@@ -2,32 +2,28 @@
 
 Per request: its texts through the text graph as one batch; its segments' codes sampled in lockstep with every other
 request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
-motion.features. Nothing here knows about HTTP. The family-specific part (which codes, from which graphs) is a codes
-object: GptCodes (t2m.decoding.gpt), MaskedCodes (t2m.decoding.masked, token maps [rows, C, R]) or HiFiGPTCodes
-(t2m.decoding.hifigpt, code maps [steps, R]); the text encoding, the unknown-text check, the single decode and the
-joints are shared. A streamed request (`on_frames`) of the lockstep families (GPT, T2M-HiFiGPT) also gets its frames
-while its codes are sampled (engine/streaming.py, as far as engine/reach.py allows).
+motion.features. Nothing here knows about HTTP or about any one family: the family-specific part (which codes,
+from which graphs) is the object its ModelFamily serves (t2m.bundle.family, engine/family_codes.py), and what it can
+do is its `capabilities`; the text encoding, the unknown-text check, the single decode and the joints are shared. A
+streamed request (`on_frames`) of a family with `early_frames` also gets its frames while its codes are sampled
+(engine/streaming.py, as far as engine/reach.py allows).
 """
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from t2m.bundle import CaptionIndex
-from t2m.decoding.gpt import SamplingJob
-from t2m.decoding.masked import MaskedJob
+from t2m.bundle import CaptionIndex, get_family
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.continuous import ContinuousCohorts, PreparedJobs
 from t2m.service.engine.decoder import Decoder
-from t2m.service.engine.gpt_codes import GptCodes
-from t2m.service.engine.hifigpt_codes import HiFiGPTCodes
-from t2m.service.engine.masked_codes import MaskedCodes
-from t2m.service.engine.onnx_step import OnnxGptStep
+from t2m.service.engine.family_codes import FamilyCodes
 from t2m.service.engine.reach import DecoderReach, probe_reach
 from t2m.service.engine.streaming import FrameStreamer
 from t2m.service.engine.text import TextEncoder, load_tokenizer
@@ -41,10 +37,6 @@ from t2m.service.engine.types import (
 )
 
 __all__ = ["OnnxEngine"]
-
-# manifest family -> the engine's codes object for it
-CODES: dict[str, type[GptCodes | MaskedCodes | HiFiGPTCodes]] = {"gpt": GptCodes, "masked": MaskedCodes,
-                                                                   "hifigpt": HiFiGPTCodes}
 
 log = logging.getLogger(__name__)
 
@@ -67,13 +59,15 @@ class OnnxEngine:
             raise BundleError(f"manifest.json: field 'num_joints' is {manifest.num_joints} but skeleton "
                               f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
-        self.codes: GptCodes | MaskedCodes | HiFiGPTCodes = CODES[manifest.family](bundle)
+        self.family = get_family(manifest.family)
+        self.capabilities = self.family.capabilities
+        self.codes: FamilyCodes = self.family.serve(bundle)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
-        # the masked family's codes exist only at the end: its frames stream once the whole motion is decoded;
-        # T2M-HiFiGPT's decoder reads a row of R codes per step
-        self.reach: DecoderReach | None = None if isinstance(self.codes, MaskedCodes) else probe_reach(
+        # a family without early frames streams once the whole motion is decoded; the reach probe feeds the decoder
+        # rows of R codes where the family's decoder reads [steps, R]
+        self.reach: DecoderReach | None = None if not self.capabilities.early_frames else probe_reach(
             self.decoder.decode, manifest.codebook_size, manifest.frames_per_token,
-            depth=manifest.residual_layers if isinstance(self.codes, HiFiGPTCodes) else None)
+            depth=manifest.residual_layers if self.capabilities.code_depth else None)
         self.stream_every = stream_every
         self.unknown_text = unknown_text
         info = manifest.caption_index
@@ -91,7 +85,7 @@ class OnnxEngine:
                         if key in raw}, "unknown_text": self._unknown_text_details(),
                      "streaming": self._streaming_details(),
                      "family": manifest.family,
-                     **({manifest.family: raw[manifest.family]} if manifest.family != "gpt" else {})})
+                     **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -102,15 +96,15 @@ class OnnxEngine:
     def _streaming_details(self) -> dict:
         """What /health says about streamed frames: how far the decoder looks ahead, hence when frames can go."""
         if self.reach is None:
-            return {"early_frames": False, "reason": "the whole token map exists only at the end (masked family)"
-                    if isinstance(self.codes, MaskedCodes) else "the decoder looks further than the probe"}
+            return {"early_frames": False, "reason": self.capabilities.why_not_early
+                    if not self.capabilities.early_frames else "the decoder looks further than the probe"}
         return {"early_frames": True, "lookahead_tokens": self.reach.ahead, "lookbehind_tokens": self.reach.behind,
                 "every_tokens": self.stream_every}
 
-    def _stream_early(self, job: SamplingJob | MaskedJob, request: GenerationRequest) -> None:
-        """Give a streamed request's sampling job a FrameStreamer (the lockstep families; the masked family streams
-        at the end)."""
-        if request.on_frames is None or self.reach is None or not isinstance(job, SamplingJob):
+    def _stream_early(self, job: Any, request: GenerationRequest) -> None:
+        """Give a streamed request's job a FrameStreamer as its `progress` hook (families with early frames; the
+        others stream at the end)."""
+        if request.on_frames is None or self.reach is None:
             return
         streamer = FrameStreamer(self.decoder.decode, self.skeleton, self.reach, self.limits.frames_per_token,
                                  self.stream_every, request.on_frames)
@@ -197,18 +191,19 @@ class OnnxEngine:
             return error
 
     def continuous(self) -> ContinuousCohorts | None:
-        """A continuous-batching session (requests join and leave at step boundaries) for the autoregressive
-        families, or None for the masked family (not autoregressive: run-to-completion micro-batching)."""
-        if isinstance(self.codes, MaskedCodes):
+        """A continuous-batching session (requests join and leave at step boundaries) for the families that can,
+        or None (e.g. the masked family, not autoregressive: run-to-completion micro-batching)."""
+        if not self.capabilities.continuous_batching:
             return None
-        return ContinuousCohorts(self, self.codes)
+        return ContinuousCohorts(self, self.codes)  # type: ignore[arg-type]  # such families start cohorts
 
     @property
-    def step(self) -> OnnxGptStep:
+    def step(self) -> Any:
         """The GPT family's step graph (t2m.decoding.gpt.GptStep), as tests drive it directly."""
-        if not isinstance(self.codes, GptCodes):
+        step = getattr(self.codes, "step", None)
+        if step is None:
             raise AttributeError(f"a {self.bundle.manifest.family!r} bundle has no GPT step")
-        return self.codes.step
+        return step
 
     def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray], warnings: list[str]) -> Motion:
         per_token = self.limits.frames_per_token

@@ -36,12 +36,10 @@ class GptCodes:
     """Requests -> per-segment code sequences [n] with the bundle's GPT step graph."""
 
     def __init__(self, bundle: Bundle) -> None:
-        manifest = bundle.manifest
-        if bundle.gpt_session is None:  # pragma: no cover - the loader opens it for every GPT bundle
-            raise ValueError("a GPT bundle needs its gpt_step.onnx session")
-        self.step = OnnxGptStep(bundle.gpt_session, manifest.n_layer, manifest.n_head, manifest.head_dim,
-                                bundle.gpt_has_length_input)
-        self.end_id = manifest.end_id
+        gpt = bundle.manifest.settings  # t2m.families.gpt.GptSettings
+        self.step = OnnxGptStep(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,
+                                gpt.length_conditioning)
+        self.end_id = gpt.end_id
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
         return lockstep_job(request, text, limits)

@@ -28,9 +28,7 @@ class HiFiGPTCodes:
 
     def __init__(self, bundle: Bundle) -> None:
         manifest = bundle.manifest
-        block = manifest.hifigpt
-        if block is None:  # pragma: no cover - the engine picks this class for hifigpt bundles only
-            raise ValueError("a hifigpt bundle needs its 'hifigpt' block")
+        block = manifest.settings  # t2m.families.hifigpt.HiFiGPTSettings
         self.temporal = OnnxTemporalStep(bundle.sessions["temporal_step.onnx"], manifest.residual_layers,
                                          block.n_layer_temporal, block.n_head, block.head_dim,
                                          block.length_conditioning)

@@ -41,9 +41,7 @@ class MaskedCodes:
 
     def __init__(self, bundle: Bundle) -> None:
         manifest = bundle.manifest
-        settings = manifest.masked
-        if settings is None:  # pragma: no cover - the engine picks this class for masked bundles only
-            raise ValueError("a masked bundle needs its 'masked' block")
+        settings = manifest.settings  # t2m.families.masked.MaskedSettings
         self.settings = settings
         self.masked, self.residual = self._steps(bundle, ("masked.onnx", "residual.onnx"), settings.columns,
                                                  settings.mask_id, settings.pad_id, settings.residual_mask_class)

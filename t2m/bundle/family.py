@@ -1,0 +1,200 @@
+"""The model-family seam: one `ModelFamily` object per family, found by the manifest's `family` name.
+
+A family is declared once (t2m/families/<name>.py for the built-in ones, or any module of a plug-in package): its
+manifest block and checks, the graphs it needs, the served decoding object and what it can do, its exporter and CLI
+flags, its training kinds, its evaluation loader and its benchmark line. The rest of t2m asks the registry
+(`get_family(manifest.family)`) instead of branching on the name.
+
+This module is the bundle contract's part of the seam (json + stdlib only). The hooks that need onnxruntime or torch
+(`serve`, `export`, `load_eval_models`) import their code inside the method, so the service never imports torch by
+looking a family up. Built-in families are imported by module name on the first lookup; plug-in packages declare
+theirs under the entry-point group `t2m.families` (each entry point names a `ModelFamily` instance), and a test or
+an application may call `register_family` directly.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import threading
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Any, ClassVar
+
+from t2m.bundle.errors import BundleError
+
+__all__ = [
+    "BUILTIN_FAMILY_MODULES",
+    "ENTRY_POINT_GROUP",
+    "Capabilities",
+    "FieldRule",
+    "ModelFamily",
+    "family_names",
+    "get_family",
+    "iter_families",
+    "register_family",
+    "unregister_family",
+]
+
+FieldRule = tuple[Callable[[Any], bool], str]
+"""(check, what the value must be) for one manifest field; the message reads "field 'x' must be <what>"."""
+
+# the families t2m ships: each module holds one ModelFamily instance named FAMILY
+BUILTIN_FAMILY_MODULES = ("t2m.families.gpt", "t2m.families.masked", "t2m.families.hifigpt")
+ENTRY_POINT_GROUP = "t2m.families"
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a family's served decoding can do; the engine, the batcher and /health read these, not the name.
+
+    `continuous_batching`: requests join running work at a step boundary (the served object has `cohort`);
+    `early_frames`: frames stream while codes are still sampled (the job has a `progress` hook and the decoder's
+    reach is probed); `code_depth`: the decoder reads [steps, R] code rows (T2M-HiFiGPT) instead of [steps] or
+    [steps, C, R] maps, for the reach probe; `edits`: the edit kinds it supports (none yet); `devices`: where its
+    graphs may run."""
+
+    continuous_batching: bool = False
+    early_frames: bool = False
+    code_depth: bool = False
+    edits: frozenset[str] = frozenset()
+    devices: tuple[str, ...] = ("cpu",)
+    why_not_early: str = "the whole token map exists only at the end"
+
+
+class ModelFamily:
+    """Base of every family: subclass it, fill in the class attributes, override the hooks, register an instance.
+
+    The manifest's common fields (t2m.bundle.manifest.COMMON_FIELDS) are checked for every family; `fields` adds the
+    family's own (its block, dotted paths), `optional_fields` the ones that may be absent or null."""
+
+    name: ClassVar[str]                         # the manifest's `family` value
+    title: ClassVar[str]                        # one line for people: "T2M-GPT: one code per step, ..."
+    fields: ClassVar[Mapping[str, FieldRule]] = {}
+    optional_fields: ClassVar[Mapping[str, FieldRule]] = {}
+    capabilities: ClassVar[Capabilities] = Capabilities()
+    training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {}   # `t2m train KIND` -> (module, help)
+    # checkpoint kinds of its PyTorch modules built from a table: kind -> (module, model class, config class)
+    checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {}
+    eval_run_option: ClassVar[str | None] = None                  # `t2m eval --NAME RUN` picks this family
+    evaluates_bundle: ClassVar[bool] = False                      # `t2m eval --bundle` takes its bundles
+
+    # ------------------------------------------------------------------ manifest and graphs (json only)
+
+    def field_table(self, common: Mapping[str, FieldRule]) -> dict[str, FieldRule]:
+        """Every required field of this family's manifests, in the order they are checked (common then own)."""
+        return {**{path: rule for path, rule in common.items() if path != "files"}, **self.fields,
+                "files": common["files"]}
+
+    def check_consistency(self, manifest: Mapping[str, Any]) -> None:
+        """Rules between fields (e.g. block sizes against max_tokens); raise BundleError naming the field."""
+
+    def required_files(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """Every file a bundle of this manifest must hold."""
+        raise NotImplementedError
+
+    def graphs(self, manifest: Mapping[str, Any]) -> dict[str, Any]:
+        """{file: t2m.bundle.graphs.GraphSpec} of the family's graphs and its decoder (the text graph is common)."""
+        raise NotImplementedError
+
+    def settings(self, manifest: Mapping[str, Any]) -> Any:
+        """The typed view of the family's block; must have `unconditional_branch`, `default_guidance` and
+        `length_conditioning`."""
+        raise NotImplementedError
+
+    def describe(self, manifest: Any, guidance: float) -> str:
+        """One line about how it decodes (t2m bench, /health)."""
+        return f"{self.name}, guidance {guidance:g}"
+
+    # ------------------------------------------------------------------ service (onnxruntime, no torch)
+
+    def serve(self, bundle: Any) -> Any:
+        """The served decoding object for a loaded bundle (t2m.service.engine.codes.FamilyCodes)."""
+        raise NotImplementedError
+
+    def check_servable(self, manifest: Any) -> None:
+        """Refuse, at load, a manifest that passes the contract but that the served loop cannot run."""
+
+    # ------------------------------------------------------------------ export, evaluation (torch, lazily)
+
+    def add_export_arguments(self, group: argparse._ArgumentGroup) -> None:
+        """`t2m export --family NAME`'s own options (their dests must not collide with another family's)."""
+
+    int8_graphs: ClassVar[frozenset[str]] = frozenset()               # what `t2m export --int8` may name
+
+    def export(self, args: argparse.Namespace, int8: Any) -> tuple[dict, dict]:
+        """Run `t2m export --family NAME`: (written manifest, checks) or raise ValueError naming what is wrong."""
+        raise NotImplementedError(f"family {self.name!r} has no exporter")
+
+    def check_export_arguments(self, args: argparse.Namespace) -> None:
+        """Refuse bad `t2m export` options of this family (ValueError with the option's name)."""
+
+    def add_eval_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """`t2m eval`'s options of this family besides its run option."""
+
+    def check_eval_arguments(self, args: argparse.Namespace) -> None:
+        """Refuse bad `t2m eval` options of this family (ValueError with the option's name)."""
+
+    def load_eval_models(self, args: argparse.Namespace, mean: Any, std: Any) -> Any:
+        """t2m.model.evaluation.evaluate.Models for `t2m eval --<eval_run_option> RUN`."""
+        raise NotImplementedError(f"family {self.name!r} cannot be evaluated from training runs")
+
+    default_eval_guidance: ClassVar[tuple[float, ...]] = (1.0, 3.0)
+
+    def __repr__(self) -> str:
+        return f"<model family {self.name!r}>"
+
+
+_registry: dict[str, ModelFamily] = {}
+_lock = threading.Lock()
+_discovered = False
+
+
+def register_family(family: ModelFamily, *, replace: bool = False) -> ModelFamily:
+    """Add a family; a second family of the same name is refused unless `replace`."""
+    _discover()
+    with _lock:
+        if family.name in _registry and not replace and _registry[family.name] is not family:
+            raise ValueError(f"a model family named {family.name!r} is already registered")
+        _registry[family.name] = family
+    return family
+
+
+def unregister_family(name: str) -> None:
+    """Remove a family (tests that register one of their own)."""
+    with _lock:
+        _registry.pop(name, None)
+
+
+def _discover() -> None:
+    """Import the built-in families, then the plug-ins' entry points, once."""
+    global _discovered
+    if _discovered:
+        return
+    with _lock:
+        if _discovered:
+            return
+        found = [importlib.import_module(module).FAMILY for module in BUILTIN_FAMILY_MODULES]
+        found += [point.load() for point in entry_points(group=ENTRY_POINT_GROUP)]
+        for family in found:
+            _registry.setdefault(family.name, family)
+        _discovered = True
+
+
+def iter_families() -> Iterator[ModelFamily]:
+    """The registered families, built-in ones first."""
+    _discover()
+    return iter(list(_registry.values()))
+
+
+def family_names() -> tuple[str, ...]:
+    return tuple(family.name for family in iter_families())
+
+
+def get_family(name: str) -> ModelFamily:
+    """The family of that name; an unknown one is a BundleError naming the manifest field and the known ones."""
+    _discover()
+    family = _registry.get(name)
+    if family is None:
+        raise BundleError(f"manifest.json: field 'family' must be one of {list(_registry)}, got {name!r}")
+    return family

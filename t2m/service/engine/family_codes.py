@@ -1,0 +1,36 @@
+"""What the engine asks of a family's served decoding object (the `serve` hook of t2m.bundle.family.ModelFamily).
+
+A family's object turns requests into jobs (its own job type: checks the request against the model, encodes the
+texts, draws its own seeded generator) and jobs into per-segment codes; the engine does the rest the same way for
+every family: text warnings, one decode of the concatenated codes, joints, formats. Families whose capabilities
+say `continuous_batching` also start cohorts that step at shared boundaries (t2m.decoding.lockstep.Cohort)."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from t2m.service.engine.text import TextEncoder
+from t2m.service.engine.types import GenerationRequest, ModelLimits
+
+__all__ = ["FamilyCodes", "FamilyJob"]
+
+
+class FamilyJob(Protocol):
+    """A request's work for its family's loop; `conds` are its segments' text features (the unknown-text check)."""
+
+    conds: np.ndarray
+
+
+class FamilyCodes(Protocol):
+    """Requests -> per-segment codes in the layout the bundle's decoder.onnx reads."""
+
+    def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> Any:
+        """The request as a job of this family's loop; a RequestLimitError names the field it breaks."""
+        ...
+
+    def sample(self, jobs: Sequence[Any], max_tokens: int,
+               on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
+        """Every job's segments' codes (None: cancelled on the way), all jobs batched together."""
+        ...
