@@ -1,5 +1,8 @@
 """The arrows of docs/contracts.md, checked on the source: every import statement (top level or inside a function)
-of every .py file under t2m/motion/, t2m/bundle/, t2m/service/, t2m/client/ and t2m/model/ is read with `ast`.
+of every .py file under t2m/motion/, t2m/bundle/, t2m/service/, t2m/client/, t2m/model/ and t2m/families/ is read
+with `ast`. A family module (t2m/families/) imports only the bundle contract at its top level: its hooks import the
+service, export or model code inside the function, so looking a family up never imports torch or onnxruntime; and
+no package imports t2m/families/ (the registry in t2m.bundle.family finds the built-in families by module name).
 
 Our packages are the sub-packages of `t2m`; an import of `t2m.X...` counts as an import of package X."""
 from __future__ import annotations
@@ -12,7 +15,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 ROOT = REPO / "t2m"
-OURS = {"motion", "model", "export", "service", "client", "cli", "bundle", "bundles", "decoding"}
+OURS = {"motion", "model", "export", "service", "client", "cli", "bundle", "bundles", "decoding", "families"}
 STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 
 # which of our packages each package may import (itself included)
@@ -25,19 +28,23 @@ ALLOWED_OURS = {
     "model": {"model", "motion", "bundle", "decoding"},
     # the exporter computes a bundle's caption index with the service's own text path (same features)
     "export": {"export", "model", "motion", "bundle", "decoding", "bundles", "service"},
+    "families": {"families", "bundle", "service", "export", "model", "decoding", "motion"},
 }
+# what a family module may import at its top level (the rest only inside its hooks)
+FAMILIES_TOP_LEVEL = {"families", "bundle"}
+FAMILIES_TOP_LEVEL_THIRD_PARTY = {"numpy"}
 NEVER = {"torch"}  # for every package but model and export
 MOTION_THIRD_PARTY = {"numpy"}
 GLTF_THIRD_PARTY = {"numpy", "pygltflib", "trimesh"}
 
 
-def imported_top_names(path: Path) -> list[tuple[int, str]]:
-    """(line, package) for every import in the file: the sub-package for `t2m.X...`, else the top-level module;
-    relative imports count as the file's own package."""
+def imported_top_names(path: Path, top_level_only: bool = False) -> list[tuple[int, str]]:
+    """(line, package) for every import in the file (or only the module's own top-level statements): the
+    sub-package for `t2m.X...`, else the top-level module; relative imports count as the file's own package."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     package = path.relative_to(ROOT).parts[0]
     names: list[tuple[int, str]] = []
-    for node in ast.walk(tree):
+    for node in (tree.body if top_level_only else ast.walk(tree)):
         if isinstance(node, ast.Import):
             names += [(node.lineno, _package_of(alias.name)) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -63,10 +70,17 @@ def violations(package: str) -> list[str]:
                 found.append(f"{where}:{line} imports {name}")
             if package not in ("model", "export") and name in NEVER:
                 found.append(f"{where}:{line} imports {name}")
+            if package != "families" and name == "families":
+                found.append(f"{where}:{line} imports families (only the registry finds them, by module name)")
             if package == "motion" and name not in STDLIB and name not in OURS:
                 allowed = GLTF_THIRD_PARTY if path.name == "gltf.py" else MOTION_THIRD_PARTY
                 if name not in allowed:
                     found.append(f"{where}:{line} imports {name} (motion/ is numpy-only)")
+        if package == "families":
+            for line, name in imported_top_names(path, top_level_only=True):
+                if (name in OURS and name not in FAMILIES_TOP_LEVEL) or (
+                        name not in OURS and name not in STDLIB and name not in FAMILIES_TOP_LEVEL_THIRD_PARTY):
+                    found.append(f"{where}:{line} imports {name} at its top level (only inside a hook)")
     return found
 
 
@@ -91,6 +105,12 @@ def test_the_checker_sees_nested_and_relative_imports(tmp_path, monkeypatch):
     (tmp_path / "motion").mkdir()
     (tmp_path / "motion" / "features.py").write_text("import numpy\nimport scipy.ndimage\n")
     assert violations("motion") == ["motion/features.py:2 imports scipy (motion/ is numpy-only)"]
+    (tmp_path / "families").mkdir()
+    (tmp_path / "families" / "bad.py").write_text(
+        "import onnxruntime\nfrom t2m.service.engine.engine import OnnxEngine\n"
+        "def serve():\n    from t2m.service.engine.gpt_codes import GptCodes\n")
+    assert violations("families") == ["families/bad.py:1 imports onnxruntime at its top level (only inside a hook)",
+                                      "families/bad.py:2 imports service at its top level (only inside a hook)"]
 
 
 def module_imports() -> dict[str, set[str]]:
