@@ -30,6 +30,8 @@ import ast
 import json
 import os
 import re
+import shutil
+import subprocess
 from functools import cache
 from pathlib import Path
 
@@ -240,6 +242,32 @@ def test_every_path_a_manifest_names_exists(manifest: Path):
     strings = strings_of(json.loads(manifest.read_text(encoding="utf-8")))
     problems = [p for s in strings for p in problems_in_text(s, manifest)]
     assert not problems, f"{manifest.relative_to(REPO)} names paths that do not exist:\n  " + "\n  ".join(problems)
+
+
+MACHINE_FOLDER = re.compile(r"(?<![\w.~\-])/(?:work|root|home)/")
+BINARY_SUFFIXES = {".onnx", ".npz", ".npy", ".png", ".gif", ".gz", ".pt", ".safetensors"}
+
+
+def tracked_text_files(repo: Path = REPO) -> list[Path]:
+    if shutil.which("git") is None or not (repo / ".git").exists():
+        pytest.skip("not a git checkout: the tracked files are unknown")
+    names = subprocess.run(["git", "ls-files", "-z"], cwd=repo, capture_output=True, check=True).stdout
+    return [repo / name for name in names.decode().split("\0")
+            if name and Path(name).suffix not in BINARY_SUFFIXES and name != ".gitignore"]
+
+
+def test_no_file_names_a_folder_of_one_machine():
+    """/work/..., /root/..., /home/...: a folder of the machine a change was made on, meaningless in a clone (a
+    shared tool is named by its command, a data set by its archive or an option). .gitignore's `/work/` is a
+    pattern of the repository, not such a path, and this file names them to find them."""
+    found = []
+    for path in tracked_text_files():
+        if not path.is_file() or path.resolve() == Path(__file__).resolve():
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+            if MACHINE_FOLDER.search(line):
+                found.append(f"{path.relative_to(REPO)}:{number}: {line.strip()[:100]}")
+    assert not found, "paths of one machine:\n  " + "\n  ".join(found)
 
 
 def test_control_a_broken_path_is_reported_and_a_good_one_is_not(tmp_path):
