@@ -8,7 +8,7 @@ pelvis velocity jump at each join is compared with the changes inside the segmen
 
     python benchmarks/probes.py                                  # t2m/bundles/default, 5 seeds, the model's guidance
     python benchmarks/probes.py --bundle DIR --seeds 5 --guidance 3 --json-out artifacts/probes.json
-    python benchmarks/probes.py --real-clips /work/scratch/dataset --per-content 20   # the probes on motion capture
+    python benchmarks/probes.py --real-clips DATASET_DIR --per-content 20   # on motion capture (the archive's dataset/)
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$repo"
-model="${1:-$repo/t2m/bundles/default}"
+model="${1:-t2m/bundles/default}"                 # relative: the log names no machine's folders
 python="${PYTHON:-python}"
 phase_seconds="${SECONDS_PER_PHASE:-30}"
 export PYTHONPATH="$repo${PYTHONPATH:+:$PYTHONPATH}"

@@ -107,7 +107,7 @@ python scripts/render_motions.py --bundle t2m/bundles/default --out docs/images 
 # --residual-layers 4 (and --max-tokens 50 in step 2, ~+40 min) before training the GPT.
 #
 # Training step cost, interleaved in one process (forward + backward + AdamW on random batches of the real shapes;
-# median of 10 steps each, /tmp/hifi ratio script):
+# median of 10 steps each, a one-off script not kept):
 #   default GPT (E 256, 4 layers, batch 128 x 50 codes):       2213 ms (1.00x; idle: 2.6 steps/s = 336 motions/s)
 #   HiFiGPT E 256, 2 + 2 layers, batch 64 x 25 steps x R 6:   1869 ms (0.84x -> ~3.1 steps/s idle)
 #   HiFiGPT E 256, 3 + 3 layers, batch 64 x 25 steps x R 6:   2764 ms (1.25x -> ~2.1 steps/s idle; chosen)

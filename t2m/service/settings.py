@@ -49,9 +49,9 @@ class Settings(BaseSettings):
                                                           "joining a running batch, so that simultaneous ones start "
                                                           "together).")
     continuous_batching: bool = Field(
-        True, description="GPT-family models: a request joins the running batch at the next step boundary and is "
-                          "answered as soon as its own codes are done (false: each batch runs to its end first). "
-                          "The masked and T2M-HiFiGPT families always run batches to their end.")
+        True, description="The autoregressive families (GPT and T2M-HiFiGPT): a request joins the running batch at "
+                          "the next step boundary and is answered as soon as its own codes are done (false: each "
+                          "batch runs to its end first). The masked family always runs batches to their end.")
     request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")
     max_body_bytes: int = Field(64 * 1024, ge=1024, description="Larger request bodies answer 413.")
     api_key: SecretStr | None = Field(None, description="If set, POST /generate needs 'Authorization: Bearer <key>'.")

@@ -439,7 +439,7 @@ def _build(root: Path, out: Path, options: BuildOptions, source_name: str) -> di
         "source": Path(source_name).name,
         "license": LICENSE,
         "attribution": ATTRIBUTION,
-        "captions": "templated from the content and style labels (model/captions.py), not written by people",
+        "captions": "templated from the content and style labels (t2m/model/data/captions.py), not written by people",
         "skeleton": "smpl22", "fps": FPS, "feature_dim": feature_dim(SMPL22),
         "clips_found": len(all_clips), "clips_used": len(clips) - len(skipped), "clips_skipped": len(skipped),
         "items": sum(s["items"] for s in per_split.values()),
