@@ -185,9 +185,12 @@ def problems_in_text(text: str, page: Path, repo: Path = REPO) -> list[str]:
             problems.append(f"link ({target}): no heading #{anchor} in {destination.name}")
 
     rooted = set()
-    for token in ROOTED.findall(text):
-        token = token.rstrip(".")
+    for match in ROOTED.finditer(text):
+        token = match.group(1).rstrip(".")
         rooted.add(token)
+        following = text[match.end():match.end() + 1]
+        if following and following in "<{*" and "/" in token:
+            token = token.rsplit("/", 1)[0]   # cut inside a name by a placeholder: its folder must exist
         if not (repo / token).exists():
             problems.append(f"path {token}: no such file or folder")
 
