@@ -74,8 +74,9 @@ def type_text(field: FieldInfo) -> str:
     elif typing.get_origin(annotation) is list:
         kind = "comma-separated " + ("directories" if args == [Path] else "list")
     else:
-        kind = {bool: "true/false", int: "integer", float: "number", Path: "directory", str: "string"}.get(
-            annotation, getattr(annotation, "__name__", str(annotation)))
+        names: dict[object, str] = {bool: "true/false", int: "integer", float: "number", Path: "directory",
+                                    str: "string"}
+        kind = names.get(annotation) or str(getattr(annotation, "__name__", annotation))
     bound = {attribute: getattr(item, attribute) for item in field.metadata
              if isinstance(item, annotated_types.BaseMetadata)
              for attribute in ("ge", "gt", "le", "lt") if getattr(item, attribute, None) is not None}

@@ -23,11 +23,11 @@ from typing import Protocol
 import numpy as np
 
 from t2m.decoding.lockstep import (
-    Batch,
     Cohort,
     Rows,
     SamplingJob,
     Segment,
+    StepRows,
     drop_finished,
     guided,
     live_segments,
@@ -50,7 +50,7 @@ class GptStep(Protocol):
         ...
 
 
-def _choose(job: SamplingJob, active: list[int], logits: np.ndarray, rows: Rows, batch: Batch,
+def _choose(job: SamplingJob, active: list[int], logits: np.ndarray, rows: Rows, batch: StepRows,
             end_id: int) -> np.ndarray:
     """The next token of each active segment of one job: guided logits, End rule, one draw each."""
     # End is never a first token, and never before a segment's target

@@ -18,8 +18,21 @@ import numpy as np
 
 from t2m.decoding.tokens import guided_logits
 
-__all__ = ["Batch", "Cohort", "Rows", "SamplingJob", "Segment", "check_targets", "drop_finished", "guided",
-           "live_segments", "report_progress", "results", "row_maps", "start"]
+__all__ = [
+    "Cohort",
+    "Rows",
+    "SamplingJob",
+    "Segment",
+    "StepRows",
+    "check_targets",
+    "drop_finished",
+    "guided",
+    "live_segments",
+    "report_progress",
+    "results",
+    "row_maps",
+    "start",
+]
 
 
 @dataclass
@@ -36,6 +49,23 @@ class SamplingJob:
     cancelled: Callable[[], bool] = field(default=lambda: False)
     # after each step that gave the job codes: each segment's steps so far and whether it is finished (streaming)
     progress: Callable[[list[list[Any]], list[bool]], None] | None = None
+
+    @classmethod
+    def of(cls, conds: np.ndarray, targets: Sequence[int | None], *, max_tokens: int, guidance: float = 1.0,
+           temperature: float = 1.0, top_k: int | None = None, rng: np.random.Generator | int | None = None,
+           greedy: bool = False, cancelled: Callable[[], bool] | None = None) -> SamplingJob:
+        """The one way to make a job (service, PyTorch reference, bundle evaluation, parity): one condition row per
+        target, each target in 1..max_tokens or None; temperature 0 means greedy (argmax); a seed or None becomes
+        the job's own Generator."""
+        conds = np.asarray(conds, dtype=np.float32)
+        if len(targets) != len(conds):
+            raise ValueError(f"{len(targets)} targets for {len(conds)} condition rows")
+        job = cls(conds=conds, targets=[None if t is None else int(t) for t in targets], guidance=float(guidance),
+                  temperature=temperature if temperature > 0 else 1.0, top_k=top_k,
+                  rng=rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng),
+                  greedy=greedy or temperature == 0, cancelled=cancelled or (lambda: False))
+        check_targets([job], max_tokens)
+        return job
 
 
 @dataclass
@@ -54,7 +84,7 @@ class Segment:
 
 
 @dataclass
-class Batch:
+class StepRows:
     """The rows stepping together: row r works for segment `owner[r]`; cond rows come first, null rows after."""
 
     segments: list[Segment]
@@ -74,13 +104,14 @@ class Rows:
 
 
 def check_targets(jobs: Sequence[SamplingJob], max_tokens: int) -> None:
+    """Every target within 1..max_tokens (or None), naming the segment: the loops' guard for jobs made by hand."""
     for job in jobs:
         for index, target in enumerate(job.targets):
             if target is not None and not 1 <= target <= max_tokens:
                 raise ValueError(f"segment {index}: target of {target} tokens is outside 1..{max_tokens}")
 
 
-def start(jobs: Sequence[SamplingJob], empty_cache: Callable[[int], np.ndarray]) -> Batch:
+def start(jobs: Sequence[SamplingJob], empty_cache: Callable[[int], np.ndarray]) -> StepRows:
     """One cond row per segment of every job, then one null row per segment of every guided job."""
     segments: list[Segment] = []
     of_job: list[list[int]] = []
@@ -100,7 +131,7 @@ def start(jobs: Sequence[SamplingJob], empty_cache: Callable[[int], np.ndarray])
     owner = np.asarray(owners, dtype=np.int64)
     length = np.asarray([segments[s].target or 0 for s in owner], dtype=np.int64)
     cond = np.asarray(conds, dtype=np.float32).reshape(len(owners), dim)
-    return Batch(segments, of_job, cond, length, owner, empty_cache(len(owner)))
+    return StepRows(segments, of_job, cond, length, owner, empty_cache(len(owner)))
 
 
 def row_maps(owner: np.ndarray) -> Rows:
@@ -116,7 +147,7 @@ def guided(job: SamplingJob, active: Sequence[int], logits: np.ndarray, rows: Ro
     return guided_logits(chosen, logits[[rows.null[s] for s in active]].astype(np.float64), job.guidance)
 
 
-def live_segments(batch: Batch, jobs: Sequence[SamplingJob],
+def live_segments(batch: StepRows, jobs: Sequence[SamplingJob],
                   cancelled: list[bool]) -> Iterator[tuple[SamplingJob, list[int]]]:
     """Each job with segments still going, and those segments; a job cancelled since the last step is marked in
     `cancelled`, its segments done, and skipped."""
@@ -132,7 +163,7 @@ def live_segments(batch: Batch, jobs: Sequence[SamplingJob],
         yield job, active
 
 
-def report_progress(batch: Batch, job: SamplingJob, active: Sequence[int]) -> None:
+def report_progress(batch: StepRows, job: SamplingJob, active: Sequence[int]) -> None:
     """After a step in which `active` (segments of `job`, at least one) were live: hand the job's `progress`, if
     any, every segment's steps so far and whether it is finished."""
     if job.progress is None:
@@ -141,7 +172,7 @@ def report_progress(batch: Batch, job: SamplingJob, active: Sequence[int]) -> No
     job.progress([segment.tokens for segment in mine], [segment.done for segment in mine])
 
 
-def drop_finished(batch: Batch) -> np.ndarray:
+def drop_finished(batch: StepRows) -> np.ndarray:
     """Remove the rows of finished segments (and their cache); returns the kept rows' mask."""
     keep = np.asarray([not batch.segments[s].done for s in batch.owner], dtype=bool)
     if not keep.all():
@@ -150,7 +181,7 @@ def drop_finished(batch: Batch) -> np.ndarray:
     return keep
 
 
-def results(batch: Batch, cancelled: Sequence[bool]) -> list[list[np.ndarray] | None]:
+def results(batch: StepRows, cancelled: Sequence[bool]) -> list[list[np.ndarray] | None]:
     """Per job its segments' int64 arrays (one entry per step), or None for a cancelled job."""
     return [None if cancelled[j] else [np.asarray(batch.segments[s].tokens, dtype=np.int64) for s in indices]
             for j, indices in enumerate(batch.of_job)]

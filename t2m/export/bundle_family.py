@@ -44,9 +44,8 @@ class BundleLockstepFamily:
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:
-        job = SamplingJob(conds=np.asarray(cond, np.float32), targets=[int(t) for t in tokens], guidance=guidance,
-                          temperature=temperature if temperature > 0 else 1.0, top_k=top_k, rng=rng,
-                          greedy=temperature == 0)
+        job = SamplingJob.of(cond, [int(t) for t in tokens], max_tokens=self.max_tokens, guidance=guidance,
+                             temperature=temperature, top_k=top_k, rng=rng)
         (result,) = self._codes.sample([job], self.max_tokens, None)
         return [np.asarray(c, np.int64) for c in result]
 

@@ -1,10 +1,10 @@
 """onnxruntime vs PyTorch, float32: does the bundle compute what the trained modules compute?
 
 - GPT step graph: a greedy rollout of ``steps`` codes (End masked, so every step yields a code) with the
-  guidance pair (cond row + zero-condition row) in one batch, run once through ``MotionGPT.forward_step``
-  and once through onnxruntime, each feeding back its own choices. Reports the largest logit difference
-  over all steps and rows, whether the code sequences are identical, and agreement with the
-  reference sampler (``t2m.model.sampling.sample_codes``) and with full-prefix recomputation (``forward``).
+  guidance pair (cond row + zero-condition row) in one batch, run by the service's own loop (t2m.decoding.gpt)
+  once over ``MotionGPT.forward_step`` (t2m.model.sampling.TorchGptStep) and once over onnxruntime, each feeding
+  back its own choices. Reports the largest logit difference over all steps and rows, whether the code sequences
+  are identical, and the difference from full-prefix recomputation (``forward``, as T2M-GPT samples).
 - Decoder graph: features for random codes vs ``vq.decode(codes) * std + mean`` (residual: some depths -1).
 - Text graph: features for captions tokenized with the bundle's tokenizer.json vs the PyTorch encoder.
 """
@@ -45,55 +45,48 @@ def guidance_rows(cond: np.ndarray, length: np.ndarray, guidance: float) -> tupl
     return np.concatenate([cond, np.zeros_like(cond)]), np.concatenate([length, length])
 
 
-def _next_tokens(logits: np.ndarray, batch: int, guidance: float, end_id: int) -> np.ndarray:
-    if guidance != 1.0:
-        logits = logits[batch:] + guidance * (logits[:batch] - logits[batch:])
-    return logits[:, :end_id].argmax(axis=-1).astype(np.int64)  # End masked: a fixed-length rollout
+class _RecordingStep:
+    """A GPT step (t2m.decoding.gpt.GptStep) that records each call's logits and feeds the rollout's own length
+    input (a row may read 0, free length, while the loop holds it to exactly `steps` codes)."""
+
+    def __init__(self, step: Any, length: np.ndarray) -> None:
+        self.step, self.length = step, length
+        self.logits: list[np.ndarray] = []
+
+    def empty_cache(self, batch: int) -> np.ndarray:
+        return self.step.empty_cache(batch)
+
+    def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        logits, present = self.step(cond, token, position, self.length, past)
+        self.logits.append(np.asarray(logits))
+        return logits, present
+
+
+def greedy_rollout(step: Any, cond: np.ndarray, length: np.ndarray, steps: int, end_id: int,
+                   guidance: float = 1.0) -> Rollout:
+    """`steps` guided argmax codes per row through the service's own GPT loop (t2m.decoding.gpt, End masked until
+    the target) over any step: the exported graph or the PyTorch module, each feeding back its own choices."""
+    from t2m.decoding.gpt import SamplingJob, sample_codes
+
+    cond = np.asarray(cond, np.float32)
+    recorder = _RecordingStep(step, guidance_rows(cond, np.asarray(length, np.int64), guidance)[1])
+    job = SamplingJob.of(cond, [steps] * len(cond), max_tokens=steps, guidance=guidance, temperature=0)
+    start = time.perf_counter()
+    (codes,) = sample_codes(recorder, [job], steps, end_id)
+    assert codes is not None  # a job without a cancel callback is never cancelled
+    return Rollout(np.stack(codes), recorder.logits, time.perf_counter() - start)
 
 
 def ort_greedy_rollout(session: Any, cond: np.ndarray, length: np.ndarray, kv_shape: Sequence[int], steps: int,
                        end_id: int, guidance: float = 1.0) -> Rollout:
-    """Greedy rollout through a gpt_step onnxruntime session; kv_shape = (n_layer, n_head, head_dim)."""
-    names = {i.name for i in session.get_inputs()}
+    """greedy_rollout through a gpt_step onnxruntime session; kv_shape = (n_layer, n_head, head_dim)."""
+    from t2m.service.engine.onnx_step import OnnxGptStep
+
+    has_length = "length" in {tensor.name for tensor in session.get_inputs()}
     n_layer, n_head, head_dim = kv_shape
-    batch = cond.shape[0]
-    rows_cond, rows_len = guidance_rows(cond.astype(np.float32), length.astype(np.int64), guidance)
-    past = np.zeros((n_layer, 2, rows_cond.shape[0], n_head, 0, head_dim), np.float32)
-    token = np.zeros(rows_cond.shape[0], np.int64)
-    codes, all_logits = [], []
-    start = time.perf_counter()
-    for step in range(steps):
-        feeds = {"cond": rows_cond, "token": token, "position": np.array([step], np.int64), "past_kv": past}
-        if "length" in names:
-            feeds["length"] = rows_len
-        logits, past = session.run(None, feeds)
-        all_logits.append(logits)
-        next_token = _next_tokens(logits, batch, guidance, end_id)
-        codes.append(next_token)
-        token = np.concatenate([next_token, next_token]) if guidance != 1.0 else next_token
-    return Rollout(np.stack(codes, axis=1), all_logits, time.perf_counter() - start)
-
-
-@torch.no_grad()
-def torch_greedy_rollout(gpt: MotionGPT, cond: np.ndarray, length: np.ndarray, steps: int,
-                         guidance: float = 1.0) -> Rollout:
-    """The same rollout through MotionGPT.forward_step (KV cache in PyTorch)."""
-    gpt.eval()
-    batch = cond.shape[0]
-    rows_cond, rows_len = guidance_rows(cond.astype(np.float32), length.astype(np.int64), guidance)
-    cond_t = torch.from_numpy(rows_cond)
-    len_t = torch.from_numpy(rows_len) if gpt.config.length_conditioning else None
-    past = gpt.empty_cache(cond_t.shape[0])
-    token = torch.zeros(cond_t.shape[0], dtype=torch.long)
-    codes, all_logits = [], []
-    start = time.perf_counter()
-    for step in range(steps):
-        logits, past = gpt.forward_step(cond_t, token, step, len_t, past)
-        all_logits.append(logits.numpy())
-        next_token = _next_tokens(logits.numpy(), batch, guidance, gpt.config.end_id)
-        codes.append(next_token)
-        token = torch.from_numpy(np.concatenate([next_token, next_token]) if guidance != 1.0 else next_token)
-    return Rollout(np.stack(codes, axis=1), all_logits, time.perf_counter() - start)
+    return greedy_rollout(OnnxGptStep(session, n_layer, n_head, head_dim, has_length), cond, length, steps, end_id,
+                          guidance)
 
 
 @torch.no_grad()
@@ -113,7 +106,6 @@ class GptParity:
     rows: int
     max_abs_logit_diff: float
     codes_identical: bool
-    matches_sample_codes: bool
     max_abs_diff_vs_recompute: float
 
 
@@ -121,7 +113,7 @@ def gpt_parity(gpt: MotionGPT, onnx_path: str | Path, steps: int = 50, guidance:
                seed: int = 0) -> GptParity:
     """Compare the exported step graph with the PyTorch model on a ``steps``-long greedy rollout."""
     from t2m.export.graph_export import ort_session
-    from t2m.model.sampling import sample_codes
+    from t2m.model.sampling import TorchGptStep, evaluating
 
     c = gpt.config
     steps = min(steps, c.max_tokens)
@@ -129,17 +121,16 @@ def gpt_parity(gpt: MotionGPT, onnx_path: str | Path, steps: int = 50, guidance:
     cond = rng.normal(size=(batch, c.text_dim)).astype(np.float32)
     cond /= np.linalg.norm(cond, axis=1, keepdims=True)
     length = np.full(batch, steps, np.int64)
-    reference = torch_greedy_rollout(gpt, cond, length, steps, guidance)
+    with evaluating(gpt):
+        reference = greedy_rollout(TorchGptStep(gpt), cond, length, steps, c.end_id, guidance)
     exported = ort_greedy_rollout(ort_session(onnx_path), cond, length, (c.n_layer, c.n_head, c.head_dim), steps,
                                   c.end_id, guidance)
-    sampled = sample_codes(gpt, torch.from_numpy(cond), [steps] * batch, guidance=guidance, greedy=True)
     recomputed = recompute_logits(gpt, cond, length, reference.codes, guidance)
     return GptParity(
         steps=steps,
         rows=reference.logits[0].shape[0],
         max_abs_logit_diff=max(float(np.abs(a - b).max()) for a, b in zip(reference.logits, exported.logits)),
         codes_identical=bool(np.array_equal(reference.codes, exported.codes)),
-        matches_sample_codes=bool(np.array_equal(np.array(sampled), exported.codes)),
         max_abs_diff_vs_recompute=max(float(np.abs(a - b).max()) for a, b in zip(recomputed, exported.logits)),
     )
 

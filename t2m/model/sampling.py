@@ -43,15 +43,8 @@ def reference_job(cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int |
                   greedy: bool) -> SamplingJob:
     """Every condition row as one segment of one request (the reference samplers' job); temperature 0 = greedy."""
     conds = np.asarray(cond.detach().cpu().numpy() if isinstance(cond, torch.Tensor) else cond, dtype=np.float32)
-    if len(target_tokens) != len(conds):
-        raise ValueError(f"target_tokens has {len(target_tokens)} entries for {len(conds)} condition rows")
-    for index, target in enumerate(target_tokens):
-        if target is not None and not 1 <= int(target) <= max_tokens:
-            raise ValueError(f"target_tokens[{index}] must be in 1..{max_tokens} or None, got {target}")
-    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    return SamplingJob(conds=conds, targets=[None if t is None else int(t) for t in target_tokens], guidance=guidance,
-                       temperature=temperature if temperature > 0 else 1.0, top_k=top_k, rng=generator,
-                       greedy=greedy or temperature == 0)
+    return SamplingJob.of(conds, target_tokens, max_tokens=max_tokens, guidance=guidance, temperature=temperature,
+                          top_k=top_k, rng=rng, greedy=greedy)
 
 
 @contextmanager

@@ -24,8 +24,6 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from t2m import __version__
-from t2m.service.batching import QueuedWorkers
-from t2m.service.continuous_batching import batcher_for
 from t2m.service.dependencies import ServiceState
 from t2m.service.engine.types import Engine
 from t2m.service.formats import preload as preload_formats
@@ -33,6 +31,7 @@ from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
 from t2m.service.middleware import BodySizeLimitMiddleware
 from t2m.service.registry import ModelRegistry, ServedModel, load_engines
 from t2m.service.routes import generate, health, metrics
+from t2m.service.scheduling import QueuedWorkers, batcher_for
 from t2m.service.settings import Settings
 
 __all__ = ["app_from_env", "create_app", "load_onnx_engine"]

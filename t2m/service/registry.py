@@ -10,8 +10,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from t2m.service.batching import QueuedWorkers
 from t2m.service.engine.types import Engine, ModelLimits
+from t2m.service.scheduling import QueuedWorkers
 
 __all__ = ["DuplicateModelError", "LoadedEngine", "ModelLoadError", "ModelRegistry", "ServedModel", "load_engines"]
 

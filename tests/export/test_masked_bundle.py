@@ -62,11 +62,11 @@ def test_the_2d_bundle_verifies_with_its_graphs_and_parity_in_the_card(masked_2d
                                       "length.onnx", "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md"}
     assert "gpt" not in manifest and "end_id" not in manifest
     typed = read_manifest(masked_2d)
-    assert typed.masked is not None and typed.gpt is None
-    assert (typed.masked.columns, typed.residual_layers, typed.masked.mask_id) == (6, 2, 16)
+    assert typed.family == "masked" and type(typed.settings).__name__ == "MaskedSettings"
+    assert (typed.settings.columns, typed.residual_layers, typed.settings.mask_id) == (6, 2, 16)
     assert typed.default_guidance == 4.0 and typed.unconditional_branch
-    with pytest.raises(AttributeError, match="no 'gpt' block"):
-        _ = typed.n_layer
+    with pytest.raises(AttributeError, match="n_layer"):
+        _ = typed.settings.n_layer
     card = (masked_2d / "MODEL_CARD.md").read_text()
     assert "full greedy decode" in card and "tokens identical True" in card
     assert "length estimator: max |logit diff|" in card

@@ -34,7 +34,6 @@ def test_gpt_step_graph_matches_pytorch_over_a_50_step_guided_rollout(tmp_path, 
     report = gpt_parity(gpt, path, steps=50, guidance=3.0, batch=1)
     assert report.steps == 50 and report.rows == 2  # the cond row and the zero-condition row in one batch
     assert report.codes_identical
-    assert report.matches_sample_codes  # same codes as t2m.model.sampling.sample_codes (greedy, 50 targets)
     assert report.max_abs_logit_diff <= TOLERANCE, report
     assert report.max_abs_diff_vs_recompute <= TOLERANCE, report  # KV cache == full-prefix recomputation
 

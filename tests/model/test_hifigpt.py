@@ -103,7 +103,7 @@ def test_reference_sampler_targets_free_lengths_and_seeds():
     assert all(np.array_equal(a, b) for a, b in zip(maps, again))
     greedy = sample_code_maps(model, cond[[0, 0]], [5, 5], temperature=0)   # argmax: the same text, the same map
     assert np.array_equal(greedy[0], greedy[1])
-    with pytest.raises(ValueError, match=r"target_tokens\[0\] must be in 1..8"):
+    with pytest.raises(ValueError, match=r"segment 0: target of 9 tokens is outside 1..8"):
         sample_code_maps(model, cond[:1], [9])
 
 

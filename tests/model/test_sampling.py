@@ -119,7 +119,7 @@ def _advanced(seed: int, draws: int) -> dict:
 
 def test_bad_targets_raise():
     gpt = tiny_gpt()
-    with pytest.raises(ValueError, match=r"target_tokens\[1\]"):
+    with pytest.raises(ValueError, match=r"segment 1: target of .* tokens is outside"):
         sample_codes(gpt, torch.randn(2, 8), [3, MAX_TOKENS + 1])
-    with pytest.raises(ValueError, match="entries"):
+    with pytest.raises(ValueError, match="1 targets for 2 condition rows"):
         sample_codes(gpt, torch.randn(2, 8), [3])

@@ -9,9 +9,8 @@ from concurrent.futures import Future
 import numpy as np
 import pytest
 
-from t2m.service.batching import MicroBatcher
-from t2m.service.continuous_batching import ContinuousBatcher, batcher_for
 from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, SegmentRequest
+from t2m.service.scheduling import ContinuousBatcher, MicroBatcher, batcher_for
 from tests.service.fakes import FakeEngine
 
 

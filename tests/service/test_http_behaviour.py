@@ -214,8 +214,8 @@ def test_model_failure_is_500_not_422(make_client):
 def test_a_request_in_its_batch_window_counts_as_in_flight():
     """A request a worker has taken but not yet started (its batch window is open) is in no queue: the in-flight
     gauge must hold it, or a busy replica reads idle on /metrics (found by the deploy suite's drain test)."""
-    from t2m.service.batching import MicroBatcher
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.service.scheduling import MicroBatcher
 
     engine = FakeEngine()
     batcher = MicroBatcher(engine, window_s=1.0)

@@ -20,7 +20,7 @@ import numpy as np
 from t2m.decoding.lockstep import Cohort, SamplingJob
 from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion
 
-__all__ = ["CohortSource", "ContinuousCohorts", "Finished", "PreparedJobs"]
+__all__ = ["CohortSource", "Finished", "PreparedJobs", "RunningCohorts"]
 
 Finished = list[tuple[GenerationRequest, Motion | BaseException]]
 """Requests whose answer is ready, each with its Motion or the failure to raise in its place."""
@@ -61,7 +61,7 @@ class _Running:
     notes: list[list[str]]
 
 
-class ContinuousCohorts:
+class RunningCohorts:
     """One worker's running work: `admit` requests at a step boundary, `advance` every cohort by one step."""
 
     def __init__(self, engine: _Engine, codes: CohortSource) -> None:

@@ -21,7 +21,7 @@ from t2m.bundle import CaptionIndex, get_family
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
-from t2m.service.engine.continuous import ContinuousCohorts, PreparedJobs
+from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.family_codes import FamilyCodes
 from t2m.service.engine.reach import DecoderReach, probe_reach
@@ -190,12 +190,12 @@ class OnnxEngine:
             log.exception("decoding failed")
             return error
 
-    def continuous(self) -> ContinuousCohorts | None:
+    def continuous(self) -> RunningCohorts | None:
         """A continuous-batching session (requests join and leave at step boundaries) for the families that can,
         or None (e.g. the masked family, not autoregressive: run-to-completion micro-batching)."""
         if not self.capabilities.continuous_batching:
             return None
-        return ContinuousCohorts(self, self.codes)  # type: ignore[arg-type]  # such families start cohorts
+        return RunningCohorts(self, self.codes)  # type: ignore[arg-type]  # such families start cohorts
 
     @property
     def step(self) -> Any:

@@ -9,8 +9,9 @@ import numpy as np
 from t2m.decoding.gpt import GptCohort, SamplingJob, sample_codes
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxGptStep
+from t2m.service.engine.requests import check_top_k, segment_steps
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+from t2m.service.engine.types import GenerationRequest, ModelLimits
 
 __all__ = ["GptCodes", "lockstep_job"]
 
@@ -18,18 +19,12 @@ __all__ = ["GptCodes", "lockstep_job"]
 def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
     """A request as a job of the lockstep loops (the GPT's, T2M-HiFiGPT's): a target per segment from its duration
     (None = free length), checked against max_tokens and top_k against the codebook, naming the field."""
-    targets = [None if s.duration is None else tokens_for_duration(s.duration, limits.fps, limits.frames_per_token)
-               for s in request.segments]
-    for index, target in enumerate(targets):
-        if target is not None and target > limits.max_tokens:
-            raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
-                                    f"{limits.max_tokens}")
-    if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
-        raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+    targets = segment_steps(request, limits)
+    check_top_k(request, limits)
     conds = text.encode([s.text for s in request.segments])
-    return SamplingJob(conds=conds, targets=targets, guidance=request.guidance, temperature=request.temperature,
-                       top_k=request.top_k, rng=np.random.default_rng(request.seed),
-                       cancelled=lambda: request.cancelled)
+    return SamplingJob.of(conds, targets, max_tokens=limits.max_tokens, guidance=request.guidance,
+                          temperature=request.temperature, top_k=request.top_k, rng=request.seed,
+                          cancelled=lambda: request.cancelled)
 
 
 class GptCodes:

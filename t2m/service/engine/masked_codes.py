@@ -20,8 +20,9 @@ import onnxruntime as ort
 from t2m.decoding.masked import MaskedJob, sample_branch_maps, sample_token_maps
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+from t2m.service.engine.requests import check_top_k, segment_steps
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+from t2m.service.engine.types import GenerationRequest, ModelLimits
 
 __all__ = ["MaskedCodes", "draw_rows"]
 
@@ -58,24 +59,11 @@ class MaskedCodes:
                 None if residual is None else OnnxResidualStep(residual, bundle.manifest.residual_layers, pad_id,
                                                                mask_id if mask_class else None))
 
-    def _check_durations(self, request: GenerationRequest, limits: ModelLimits) -> None:
-        """Before any graph runs: each duration fits max_tokens; a null one needs the length estimator."""
-        for index, segment in enumerate(request.segments):
-            if segment.duration is None:
-                if self.length is None:
-                    raise RequestLimitError(f"segments.{index}.duration: model {limits.name!r} has no length "
-                                            "estimator; give this segment a duration in seconds")
-                continue
-            target = tokens_for_duration(segment.duration, limits.fps, limits.frames_per_token)
-            if target > limits.max_tokens:
-                raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
-                                        f"{limits.max_tokens}")
-
-    def _rows(self, request: GenerationRequest, conds: np.ndarray, rng: np.random.Generator,
+    def _rows(self, steps: list[int | None], conds: np.ndarray, rng: np.random.Generator,
               limits: ModelLimits) -> list[int]:
-        free = [i for i, s in enumerate(request.segments) if s.duration is None]
-        rows = [0 if s.duration is None else tokens_for_duration(s.duration, limits.fps, limits.frames_per_token)
-                for s in request.segments]
+        """Rows per segment: its steps, or a draw from the length estimator for a null duration."""
+        free = [i for i, s in enumerate(steps) if s is None]
+        rows = [0 if s is None else s for s in steps]
         if free and self.length is not None:
             (logits,) = self.length.run(["logits"], {"cond": conds[free]})
             for index, segment_logits in zip(free, logits):
@@ -83,13 +71,13 @@ class MaskedCodes:
         return rows
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> MaskedJob:
-        self._check_durations(request, limits)
-        if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
-            raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+        steps = segment_steps(request, limits, free=None if self.length is not None else (
+            f"model {limits.name!r} has no length estimator; give this segment a duration in seconds"))
+        check_top_k(request, limits)
         conds = text.encode([s.text for s in request.segments])
         rng = np.random.default_rng(request.seed)
         s = self.settings
-        job = MaskedJob(conds=conds, rows=self._rows(request, conds, rng, limits), rng=rng, steps=s.steps,
+        job = MaskedJob(conds=conds, rows=self._rows(steps, conds, rng, limits), rng=rng, steps=s.steps,
                         guidance=request.guidance, residual_guidance=s.residual_guidance,
                         temperature=request.temperature if s.temperature is None else s.temperature,
                         top_k=request.top_k if request.top_k is not None else s.top_k,

@@ -13,7 +13,6 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from t2m.service.batching import GenerationTimeout, QueueFullError
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, RequestLimitError
 from t2m.service.formats import (
@@ -26,6 +25,7 @@ from t2m.service.formats import (
     stream_start,
 )
 from t2m.service.registry import ServedModel
+from t2m.service.scheduling import GenerationTimeout, QueueFullError
 from t2m.service.schemas import (
     ErrorResponse,
     GenerateRequest,

@@ -1,0 +1,35 @@
+"""A request checked against the model it asks, once for every family: its segments' code steps and its top-k.
+
+Each family's served object turns a request into its own job (t2m.service.engine.family_codes), but what a request
+may ask of a model is the same for all: a duration becomes round(duration * fps / frames_per_token) steps (at least
+1) and must fit the model's longest segment, a null duration lets the model end the segment (when it can), and top-k
+must lie within the codebook. Errors are RequestLimitErrors naming the field (a 422 over HTTP)."""
+from __future__ import annotations
+
+from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+
+__all__ = ["check_top_k", "segment_steps"]
+
+
+def segment_steps(request: GenerationRequest, limits: ModelLimits, *, free: str | None = None) -> list[int | None]:
+    """Code steps per segment from its duration (None: a null duration); `free` is the reason a null duration is
+    refused by this model (None: the model can end a segment itself)."""
+    steps: list[int | None] = []
+    for index, segment in enumerate(request.segments):
+        if segment.duration is None:
+            if free is not None:
+                raise RequestLimitError(f"segments.{index}.duration: {free}")
+            steps.append(None)
+            continue
+        target = tokens_for_duration(segment.duration, limits.fps, limits.frames_per_token)
+        if target > limits.max_tokens:
+            raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
+                                    f"{limits.max_tokens}")
+        steps.append(target)
+    return steps
+
+
+def check_top_k(request: GenerationRequest, limits: ModelLimits) -> None:
+    """top_k, when given, is 1..codebook_size."""
+    if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
+        raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")

@@ -1,0 +1,301 @@
+"""Scheduling: inference off the event loop, a bounded queue, and who joins the running work when.
+
+A request waits in the queue (at most `max_queue`; one more is refused with QueueFullError -> 429). Worker threads
+take requests out by one rule, `admit`: the queue's head always joins when nothing runs (so an oversized request
+still runs, alone), and each next request in order joins while its rows fit in `max_batch_rows` beside the rows
+already stepping. When a request joins is the other half: an idle worker waits `window_s` after the first request so
+that requests arriving together start together; a busy one lets the head join once it has waited `window_s`.
+
+Two ways to run what was admitted, side by side here:
+- `MicroBatcher` (run to the end): the admitted requests are one batch, generated together by
+  `engine.generate_batch`; the worker takes the next batch when it is done (families without cohorts, e.g. masked).
+- `ContinuousBatcher` (continuous stepping): the worker keeps its engine's continuous session
+  (t2m.service.engine.continuous) open; the requests admitted at a step boundary start as a new cohort beside the
+  running ones, everything steps once, and a request is answered the step its codes are done.
+Words: a *queued request* waits here; a *batch* is the requests run together to their end; a *cohort* the requests
+that started stepping at one boundary; *rows* what a step's graph call computes (a segment each, two with guidance).
+Each request keeps its own random generator, so no schedule changes its motion.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
+
+__all__ = [
+    "CohortRunner",
+    "ContinuousBatcher",
+    "GenerationTimeout",
+    "MicroBatcher",
+    "QueueFullError",
+    "QueuedRequest",
+    "QueuedWorkers",
+    "admit",
+    "batcher_for",
+    "rows_of",
+    "running_cohorts",
+]
+
+log = logging.getLogger(__name__)
+
+
+class QueueFullError(RuntimeError):
+    """More requests are waiting than the configured bound."""
+
+
+class GenerationTimeout(TimeoutError):
+    """The request did not finish within its time limit."""
+
+
+def rows_of(request: GenerationRequest) -> int:
+    """Rows a request occupies per step: one per segment, two with guidance (cond + null)."""
+    return len(request.segments) * (1 if request.guidance == 1.0 else 2)
+
+
+@dataclass
+class QueuedRequest:
+    """A request waiting for a worker, with the Future its answer goes to."""
+
+    request: GenerationRequest
+    future: Future = field(default_factory=Future)
+    enqueued: float = field(default_factory=time.perf_counter)
+
+
+def admit(queue: deque[QueuedRequest], rows_running: int, max_rows: int) -> list[QueuedRequest]:
+    """The one admission rule: take from the head of `queue` who joins now, given `rows_running` rows stepping."""
+    joining: list[QueuedRequest] = []
+    rows = rows_running
+    while queue and (rows == 0 or rows + rows_of(queue[0].request) <= max_rows):
+        joining.append(queue.popleft())
+        rows += rows_of(joining[-1].request)
+    return joining
+
+
+class QueuedWorkers:
+    """The bounded queue, its Futures and the worker threads; subclasses say how a worker runs what it admits."""
+
+    def __init__(self, engine: Engine, *, max_queue: int = 16, max_batch_rows: int = 64, window_s: float = 0.005,
+                 workers: int = 1) -> None:
+        self.engine = engine
+        self.max_queue = max_queue
+        self.max_batch_rows = max_batch_rows
+        self.window_s = window_s
+        self._queue: deque[QueuedRequest] = deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self._in_flight = 0
+        self.batches_run = 0
+        self.largest_batch = 0
+        self._threads = [threading.Thread(target=self._work, name=f"t2m-engine-{i}", daemon=True)
+                         for i in range(workers)]
+        for thread in self._threads:
+            thread.start()
+
+    def _work(self) -> None:
+        raise NotImplementedError
+
+    @property
+    def queue_depth(self) -> int:
+        """Requests waiting for a worker."""
+        return len(self._queue)
+
+    @property
+    def in_flight(self) -> int:
+        """Requests a worker holds: admitted (within the batch window) or being generated."""
+        return self._in_flight
+
+    def submit_nowait(self, request: GenerationRequest) -> Future:
+        """Queue a request; its Future resolves to a Motion. Raises QueueFullError if the queue is at its bound."""
+        with self._cond:
+            if self._closed:
+                raise RuntimeError("the engine is shutting down")
+            if len(self._queue) >= self.max_queue:
+                raise QueueFullError(f"{len(self._queue)} requests are already waiting (limit {self.max_queue})")
+            queued = QueuedRequest(request)
+            self._queue.append(queued)
+            self._cond.notify()
+        return queued.future
+
+    async def generate(self, request: GenerationRequest, timeout_s: float) -> Motion:
+        """Generate without blocking the event loop; GenerationTimeout (and cancellation) after `timeout_s`."""
+        future = self.submit_nowait(request)
+        try:
+            return await asyncio.wait_for(asyncio.wrap_future(future), timeout_s)
+        except asyncio.TimeoutError:
+            request.cancel()
+            raise GenerationTimeout(f"generation did not finish within {timeout_s:g} s") from None
+        except asyncio.CancelledError:   # the client went away: stop spending CPU on it
+            request.cancel()
+            raise
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Refuse new work, fail what is still queued, let running work finish."""
+        with self._cond:
+            self._closed = True
+            pending = list(self._queue)
+            self._queue.clear()
+            self._cond.notify_all()
+        for queued in pending:
+            if not queued.future.done():
+                queued.future.set_exception(GenerationCancelled("the service is shutting down"))
+        for thread in self._threads:
+            thread.join(timeout_s)
+
+    def _next_admitted(self, rows_running: int) -> list[QueuedRequest] | None:
+        """Who joins now (`admit`), and when. Idle: block for the first request, then for up to window_s admit the
+        others as they arrive, while their rows fit. Busy: never block, and admit once the queue's head has waited
+        window_s. None when closed and nothing runs. An admitted request counts as in flight at once: it is in no
+        queue now, and a replica that holds requests must never look idle on /metrics (autoscaling, drain checks)."""
+        with self._cond:
+            if rows_running > 0:
+                if self._closed or not self._queue or time.perf_counter() - self._queue[0].enqueued < self.window_s:
+                    return []
+                joining = admit(self._queue, rows_running, self.max_batch_rows)
+                self._in_flight += len(joining)
+                return joining
+            while not self._queue and not self._closed:
+                self._cond.wait()
+            if self._closed:
+                return None
+            deadline = time.perf_counter() + self.window_s
+            joining, rows = [], 0
+            while True:
+                taken = admit(self._queue, rows, self.max_batch_rows)
+                joining += taken
+                rows += sum(rows_of(queued.request) for queued in taken)
+                self._in_flight += len(taken)
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0 or self._queue or rows >= self.max_batch_rows or self._closed:
+                    return joining
+                self._cond.wait(remaining)
+
+    def _live(self, joining: Sequence[QueuedRequest]) -> list[QueuedRequest]:
+        """The admitted requests still wanted; those cancelled while queued are answered (and released) now."""
+        live = []
+        for queued in joining:
+            if queued.request.cancelled:
+                self._finish(queued, GenerationCancelled("request cancelled while queued"))
+            else:
+                live.append(queued)
+        return live
+
+    def _finish(self, queued: QueuedRequest, result: object) -> None:
+        """Hand a request its Motion or its failure, once, and release its place."""
+        if not queued.future.done():
+            if isinstance(result, BaseException):
+                queued.future.set_exception(result)
+            else:
+                queued.future.set_result(result)
+        with self._cond:
+            self._in_flight -= 1
+
+
+class MicroBatcher(QueuedWorkers):
+    """Run to the end: the admitted requests are one batch, generated together before the worker admits more."""
+
+    def _work(self) -> None:
+        while True:
+            joining = self._next_admitted(0)
+            if joining is None:
+                return
+            live = self._live(joining)
+            if not live:
+                continue
+            self.batches_run += 1
+            self.largest_batch = max(self.largest_batch, len(live))
+            try:
+                results: Sequence[object] = self.engine.generate_batch([queued.request for queued in live])
+            except BaseException as error:  # an engine failure fails its batch, never the worker
+                log.exception("generation batch of %d failed", len(live))
+                results = [error] * len(live)
+            for queued, result in zip(live, results):
+                self._finish(queued, result)
+
+
+class CohortRunner(Protocol):
+    """An engine's running work (t2m.service.engine.continuous.RunningCohorts)."""
+
+    steps: int
+    joins_mid_run: int
+
+    @property
+    def rows(self) -> int: ...
+
+    @property
+    def idle(self) -> bool: ...
+
+    def admit(self, requests: Sequence[GenerationRequest]) -> list[tuple[GenerationRequest, Motion | BaseException]]:
+        ...
+
+    def advance(self) -> list[tuple[GenerationRequest, Motion | BaseException]]: ...
+
+
+def running_cohorts(engine: Engine) -> CohortRunner | None:
+    """A new continuous session of `engine`, or None if it has none (its family runs batches to their end)."""
+    make = getattr(engine, "continuous", None)
+    return make() if callable(make) else None
+
+
+class ContinuousBatcher(QueuedWorkers):
+    """Continuous stepping: each worker keeps a running session that requests join and leave at step boundaries."""
+
+    def __init__(self, engine: Engine, *, max_queue: int = 16, max_batch_rows: int = 64, window_s: float = 0.005,
+                 workers: int = 1, on_step: Callable[[int], None] | None = None) -> None:
+        """`on_step(steps)` runs in the worker after each step boundary (tests use it to submit mid-run)."""
+        if running_cohorts(engine) is None:
+            raise TypeError(f"{type(engine).__name__} has no continuous session; use MicroBatcher")
+        self.on_step = on_step
+        self.joins_mid_run = 0       # requests that joined while another was part-way through (all workers)
+        super().__init__(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s,
+                         workers=workers)
+
+    def _session(self) -> CohortRunner:
+        session = running_cohorts(self.engine)
+        assert session is not None  # checked in __init__
+        return session
+
+    def _work(self) -> None:
+        session = self._session()
+        running: dict[int, QueuedRequest] = {}       # id(request) -> its queue entry
+        while True:
+            joining = self._next_admitted(session.rows)
+            if joining is None:
+                return
+            try:
+                live = self._live(joining)
+                for queued in live:
+                    running[id(queued.request)] = queued
+                if live:
+                    mid_run = session.joins_mid_run
+                    for request, result in session.admit([queued.request for queued in live]):
+                        self._finish(running.pop(id(request)), result)
+                    self.joins_mid_run += session.joins_mid_run - mid_run
+                    self.batches_run += 1
+                    self.largest_batch = max(self.largest_batch, len(running))
+                if session.idle:
+                    continue
+                for request, result in session.advance():
+                    self._finish(running.pop(id(request)), result)
+            except BaseException as error:  # an engine failure fails what it was running, never the worker
+                log.exception("continuous generation of %d requests failed", len(running))
+                for queued in running.values():
+                    self._finish(queued, error)
+                running.clear()
+                session = self._session()
+            if self.on_step is not None:
+                self.on_step(session.steps)
+
+
+def batcher_for(engine: Engine, *, continuous: bool, max_queue: int, max_batch_rows: int, window_s: float,
+                workers: int) -> QueuedWorkers:
+    """ContinuousBatcher when asked for and the engine has a continuous session, else MicroBatcher."""
+    kind = ContinuousBatcher if continuous and running_cohorts(engine) is not None else MicroBatcher
+    return kind(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s, workers=workers)
