@@ -10,6 +10,7 @@ from fastapi import HTTPException
 
 from t2m.service.safe_json import MAX_ECHO_DEPTH, TOO_DEEP, json_safe
 from t2m.service.settings import Settings
+from tests.fuzz.hostile_check import strict_json  # UTF-8 JSON read strictly: no escaped lone surrogate either
 
 JSON = {"content-type": "application/json"}
 
@@ -30,26 +31,6 @@ def client():
     with TestClient(app, raise_server_exceptions=False) as test_client:
         wait_ready(test_client)
         yield test_client
-
-
-def strict_json(content: bytes) -> object:
-    """The body as JSON, read the way a strict client reads it: UTF-8, and no escaped lone surrogate either."""
-    value = json.loads(content.decode("utf-8"))
-    for text in _strings(value):
-        text.encode("utf-8")   # raises on "\ud800" escapes, which json.loads accepts
-    return value
-
-
-def _strings(value: object):
-    if isinstance(value, str):
-        yield value
-    elif isinstance(value, dict):
-        for key, item in value.items():
-            yield key
-            yield from _strings(item)
-    elif isinstance(value, list):
-        for item in value:
-            yield from _strings(item)
 
 
 def _fields(detail: list[dict]) -> set[str]:
