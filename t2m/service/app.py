@@ -8,20 +8,19 @@ is called once per bundle (with settings naming that bundle alone) and lets test
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
 
 from fastapi import FastAPI, Request
-from fastapi.encoders import jsonable_encoder
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from t2m import __version__
 from t2m.service.dependencies import ServiceState
@@ -31,6 +30,7 @@ from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
 from t2m.service.middleware import BodySizeLimitMiddleware
 from t2m.service.registry import ModelRegistry, ServedModel, load_engines
 from t2m.service.routes import generate, health, metrics
+from t2m.service.safe_json import json_safe
 from t2m.service.scheduling import QueuedWorkers, batcher_for
 from t2m.service.settings import Settings
 
@@ -105,8 +105,15 @@ def create_app(settings: Settings | None = None, *,
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, error: RequestValidationError) -> JSONResponse:
-        """FastAPI's 422 shape (detail = [{loc, msg, type, ...}]), made safe for inputs like NaN."""
-        return JSONResponse({"detail": _json_safe(jsonable_encoder(error.errors()))}, status_code=422)
+        """FastAPI's 422 shape (detail = [{loc, msg, type, ...}]); the echoed input made safe (NaN, lone
+        surrogates, bytes that are no UTF-8, deep nesting) so that the answer is a 422, never a 500."""
+        return JSONResponse({"detail": json_safe(error.errors())}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, error: StarletteHTTPException) -> Response:
+        """FastAPI's answer to an HTTPException (401, 404, 413, 429, ...), its detail made safe the same way."""
+        safe = StarletteHTTPException(error.status_code, json_safe(error.detail), getattr(error, "headers", None))
+        return await http_exception_handler(request, safe)
 
     @app.exception_handler(Exception)
     async def internal_error(request: Request, error: Exception) -> JSONResponse:
@@ -123,17 +130,6 @@ def create_app(settings: Settings | None = None, *,
     known = _route_paths(app)
     app.add_middleware(MetricsMiddleware, metrics=state.metrics, known_paths=lambda: known)
     return app
-
-
-def _json_safe(value: Any) -> Any:
-    """Non-finite floats (which JSON cannot carry) as strings; everything else unchanged."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
-    return value
 
 
 def _route_paths(app: FastAPI) -> set[str]:

@@ -54,6 +54,13 @@ class Settings(BaseSettings):
                           "batch runs to its end first). The masked family always runs batches to their end.")
     request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")
     max_body_bytes: int = Field(64 * 1024, ge=1024, description="Larger request bodies answer 413.")
+    # uvicorn has no such deadlines: without them a half-sent request holds its connection for ever (issue 25)
+    header_timeout_s: float = Field(
+        15.0, gt=0, description="A request's headers must be complete this long after the connection opened or the "
+                                "request's first byte; later: 408 and the connection closed (`t2m serve`).")
+    body_timeout_s: float = Field(
+        30.0, gt=0, description="A request's body must be complete this long after its headers; later: 408 and the "
+                                "connection closed (`t2m serve`).")
     api_key: SecretStr | None = Field(None, description="If set, POST /generate needs 'Authorization: Bearer <key>'.")
     cors_origins: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="Allowed CORS origins, comma-separated in the env ('*' = any).")

@@ -176,15 +176,15 @@ def free_port() -> int:
 
 
 class LiveServer:
-    """uvicorn serving an app on 127.0.0.1:<free port> in a thread."""
+    """uvicorn serving an app on 127.0.0.1:<free port> in a thread; `config` adds uvicorn.Config options."""
 
-    def __init__(self, app) -> None:
+    def __init__(self, app, **config) -> None:
         import uvicorn
 
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning",
-                                                    lifespan="on"))
+                                                    lifespan="on", **config))
         self.thread = threading.Thread(target=self.server.run, daemon=True)
 
     def __enter__(self) -> LiveServer:

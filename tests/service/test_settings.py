@@ -18,6 +18,8 @@ def test_defaults(monkeypatch):
     assert settings.bundle_path == default_bundle_path() == REPO / "t2m" / "bundles" / "default"
     assert settings.api_key is None and settings.cors_origins == []
     assert settings.max_queue >= 1 and settings.request_timeout_s > 0 and settings.max_body_bytes >= 1024
+    # a half-sent request is dropped within seconds, long before nginx's own 60 s defaults would
+    assert (settings.header_timeout_s, settings.body_timeout_s) == (15.0, 30.0)
 
 
 def test_environment(monkeypatch):
@@ -27,7 +29,10 @@ def test_environment(monkeypatch):
     monkeypatch.setenv("T2M_API_KEY", "zq-secret-91")
     monkeypatch.setenv("T2M_CORS_ORIGINS", "https://a.example, https://b.example")
     monkeypatch.setenv("T2M_INTRA_OP_THREADS", "2")
+    monkeypatch.setenv("T2M_HEADER_TIMEOUT_S", "2.5")
+    monkeypatch.setenv("T2M_BODY_TIMEOUT_S", "4")
     settings = Settings()
+    assert (settings.header_timeout_s, settings.body_timeout_s) == (2.5, 4.0)
     assert settings.bundle_path == Path("/models/mine")
     assert settings.max_queue == 3 and settings.request_timeout_s == 12.5 and settings.intra_op_threads == 2
     assert settings.api_key.get_secret_value() == "zq-secret-91" and "zq-secret-91" not in repr(settings)
@@ -42,7 +47,8 @@ def test_empty_api_key_means_none(monkeypatch):
 
 
 @pytest.mark.parametrize("field, value", [("max_queue", 0), ("request_timeout_s", 0), ("max_body_bytes", 10),
-                                          ("engine_workers", 0), ("intra_op_threads", -1)])
+                                          ("engine_workers", 0), ("intra_op_threads", -1),
+                                          ("header_timeout_s", 0), ("body_timeout_s", -1)])
 def test_bad_values_are_refused_naming_the_field(field, value):
     with pytest.raises(ValidationError, match=field):
         Settings(**{field: value})

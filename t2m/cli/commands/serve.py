@@ -80,6 +80,7 @@ def _serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from t2m.cli.main import CliError
+    from t2m.service.request_deadlines import IMPORT_PATH as DEADLINE_PROTOCOL
     from t2m.service.settings import Settings
 
     if not 1 <= args.port <= 65535:
@@ -92,7 +93,10 @@ def _serve(args: argparse.Namespace) -> int:
     check_bundles(settings.model_dirs)
     # SIGTERM (docker stop, Kubernetes): stop accepting, finish the requests in flight, exit. A generation ends
     # within the request timeout (504 after it), so waiting longer than that only delays the exit of a stuck one.
+    # http: uvicorn's protocol with deadlines for receiving a request (T2M_HEADER_TIMEOUT_S, T2M_BODY_TIMEOUT_S),
+    # named by import path so that every worker process loads it. ws="none": the API has no WebSocket route, so an
+    # Upgrade request is an ordinary HTTP request with a JSON answer (not uvicorn's bare 403 handshake refusal).
     uvicorn.run("t2m.service.app:app_from_env", factory=True, host=args.host, port=args.port, workers=args.workers,
-                log_level=args.log_level, proxy_headers=True, forwarded_allow_ips="*",
-                timeout_graceful_shutdown=graceful_shutdown_seconds(settings))
+                log_level=args.log_level, proxy_headers=True, forwarded_allow_ips="*", http=DEADLINE_PROTOCOL,
+                ws="none", timeout_graceful_shutdown=graceful_shutdown_seconds(settings))
     return 0
