@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from t2m.export.exporter import encoder_text_source
-from t2m.export.graph_export import ort_session
-from t2m.export.onnx_text import tokenize
+from t2m.export.graphs.export import ort_session
+from t2m.export.graphs.text import tokenize
+from t2m.export.kit.text_sources import encoder_text_source
 from t2m.model.networks.text_encoders import ClipEncoder
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
 

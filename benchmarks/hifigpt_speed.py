@@ -27,12 +27,12 @@ from torch import nn
 from t2m.decoding.gpt import sample_codes
 from t2m.decoding.hifigpt import depth_loop, sample_code_rows
 from t2m.decoding.lockstep import SamplingJob
-from t2m.export.bench import median_ms
-from t2m.export.graph_export import export_graph, ort_session
-from t2m.export.machine import describe_machine
-from t2m.export.onnx_decoder import export_decoder
-from t2m.export.onnx_gpt import export_gpt_step
-from t2m.export.onnx_hifigpt import export_residual_step, export_temporal_step, onnx_steps
+from t2m.export.bench.machine import describe_machine
+from t2m.export.bench.models import median_ms
+from t2m.export.graphs.decoder import export_decoder
+from t2m.export.graphs.export import export_graph, ort_session
+from t2m.export.graphs.gpt import export_gpt_step
+from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step, onnx_steps
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.hifigpt import HiFiGPT, HiFiGPTConfig
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig

@@ -43,7 +43,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))   # run as a script: the repository's packages (and its release writers)
 
 from benchmarks.released_models_speed import import_t2m_gpt_release, write_clip  # noqa: E402
-from t2m.export.machine import describe_machine  # noqa: E402
+from t2m.export.bench.machine import describe_machine  # noqa: E402
 
 VARIANTS = ["float32", "int8-7bit", "int8-8bit", "wo-int8", "wo-int4", "int4-acc4"]
 LABELS = {
@@ -69,7 +69,7 @@ def build_release_bundle(workdir: Path) -> Path:
 
 def variant_graph(bundle: Path, variant: str) -> Path:
     """The step graph of a variant, next to the bundle's float32 one (made once)."""
-    from t2m.export.quantize import quantize_graph, quantize_graph_int4, quantize_weights_nbits
+    from t2m.export.writing.quantize import quantize_graph, quantize_graph_int4, quantize_weights_nbits
 
     fp32 = bundle / "gpt_step.onnx"
     if variant == "float32":
@@ -120,7 +120,7 @@ def conditions(manifest: dict, guided: bool) -> tuple[np.ndarray, np.ndarray]:
 
 def ort_ms_per_token(path: Path, manifest: dict, guided: bool, tokens: int, repeats: int,
                      threads: int) -> tuple[float, float]:
-    from t2m.export.graph_export import ort_session
+    from t2m.export.graphs.export import ort_session
 
     session = ort_session(path, threads=threads)
     gpt = manifest["gpt"]
@@ -147,7 +147,7 @@ def ort_ms_per_token(path: Path, manifest: dict, guided: bool, tokens: int, repe
 def eager_ms_per_token(release: Path, manifest: dict, guided: bool, tokens: int,
                        threads: int) -> tuple[float, float]:
     """MotionGPT.forward on the whole prefix at every token (one timed run after a short warm-up)."""
-    from t2m.export.t2m_gpt_import import load_release
+    from t2m.export.importers.t2m_gpt import load_release
 
     torch.set_num_threads(threads)
     files = {name: release / name for name in ("net_last.pth", "net_best_fid.pth", "mean.npy", "std.npy")}

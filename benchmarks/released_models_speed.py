@@ -4,7 +4,7 @@ No released weights can be fetched here, so each release is written with random 
 the test suite's writers (tests/export/*_release_files.py, t2m_gpt_release_keys.py), imported with the importers
 `t2m import` runs (OpenAI's CLIP ViT-B/32 text tower at full size, random, in OpenAI's TorchScript format from
 tests/model/openai_clip_format.py), and the three bundles are timed by `t2m bench --bundle`'s code
-(t2m.export.bundle_bench: text / codes / decode per request, a 10 s motion and a 3-sentence stream). Speed depends
+(t2m.export.bench.bundles: text / codes / decode per request, a 10 s motion and a 3-sentence stream). Speed depends
 on sizes, not values, so these are the figures of the real releases on this machine; the figures are printed, never
 asserted.
 
@@ -33,10 +33,10 @@ from momask_release_files import release_states as momask_states  # noqa: E402
 from momask_release_files import write_release as write_momask  # noqa: E402
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]  # noqa: E402
 
-from t2m.export.bundle_bench import run_bundle_bench  # noqa: E402
-from t2m.export.mogents_import import import_mogents  # noqa: E402
-from t2m.export.momask_import import import_momask  # noqa: E402
-from t2m.export.t2m_gpt_import import import_t2m_gpt  # noqa: E402
+from t2m.export.bench.bundles import run_bundle_bench  # noqa: E402
+from t2m.export.importers.mogents import import_mogents  # noqa: E402
+from t2m.export.importers.momask import import_momask  # noqa: E402
+from t2m.export.importers.t2m_gpt import import_t2m_gpt  # noqa: E402
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive  # noqa: E402
 
 

@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from t2m.export.bundle import write_bundle
+from t2m.export.writing.bundle import write_bundle
 
 
 def rehash(bundle: Path) -> list[str]:

@@ -13,7 +13,7 @@ temperature 1 whatever the mask stage's is, which `residual_temperature` reprodu
 own Generator, per step one uniform per token of its segments in segment order, so its tokens do not depend on what
 else shares the batch (padded rows of shorter segments are never drawn). `MaskedStep`/`ResidualStep` are what the
 loop needs from the networks: the service wraps the ONNX graphs, the PyTorch reference wraps the modules
-(t2m.model.masked_sampling).
+(t2m.model.sampling.masked).
 """
 from __future__ import annotations
 

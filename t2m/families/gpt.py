@@ -1,6 +1,6 @@
 """T2M-GPT: one code per step from gpt_step.onnx (KV cache, End token), decoded by a 1D VQ decoder.
 
-The family's code lives in t2m.decoding.gpt (the loop), t2m.service.engine.gpt_codes (served), t2m.export.exporter
+The family's code lives in t2m.decoding.gpt (the loop), t2m.service.engine.gpt_codes (served), t2m.export.families.gpt
 (export) and t2m.model.evaluation.gpt_family (`t2m eval --gpt`)."""
 from __future__ import annotations
 
@@ -135,7 +135,7 @@ class GptFamily(ModelFamily):
                              "--hifigpt RUN)")
 
     def export(self, args: argparse.Namespace, int8: frozenset[str]) -> tuple[dict, dict]:
-        from t2m.export.exporter import export_from_runs
+        from t2m.export.families.gpt import export_from_runs
 
         choice = "none" if not int8 else "all" if len(int8) > 1 else next(iter(int8))
         manifest, checks = export_from_runs(

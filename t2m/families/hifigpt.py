@@ -2,7 +2,7 @@
 a stop logit per time step, residual_step.onnx the R codes of that step), decoded by the RVQ-VAE decoder.
 
 The family's code lives in t2m.decoding.hifigpt (the loop), t2m.service.engine.hifigpt_codes (served),
-t2m.export.hifigpt_exporter (export) and t2m.model.evaluation.hifigpt_family (`t2m eval --hifigpt`)."""
+t2m.export.families.hifigpt (export) and t2m.model.evaluation.hifigpt_family (`t2m eval --hifigpt`)."""
 from __future__ import annotations
 
 import argparse
@@ -122,7 +122,7 @@ class HiFiGPTFamily(ModelFamily):
             raise ValueError("--family hifigpt needs --hifigpt RUN")
 
     def export(self, args: argparse.Namespace, int8: frozenset[str]) -> tuple[dict, dict]:
-        from t2m.export.hifigpt_exporter import export_hifigpt_from_runs
+        from t2m.export.families.hifigpt import export_hifigpt_from_runs
 
         manifest, checks = export_hifigpt_from_runs(
             args.vq, args.hifigpt, args.output, name=args.name, version=args.version, model_card=args.model_card,

@@ -3,7 +3,7 @@ one residual pass per layer (residual.onnx), optional further generators ("branc
 length estimator; not autoregressive, so batches run to their end and frames come once the map is decoded.
 
 The family's code lives in t2m.decoding.masked (the loop), t2m.service.engine.masked_codes (served),
-t2m.export.masked_exporter (export; the MoMask and MoGenTS importers write this family too) and
+t2m.export.families.masked (export; the MoMask and MoGenTS importers write this family too) and
 t2m.model.evaluation.masked_family (`t2m eval --masked`)."""
 from __future__ import annotations
 
@@ -280,7 +280,7 @@ class MaskedFamily(ModelFamily):
                 raise ValueError(f"{option} must be >= 1, got {value}")
 
     def export(self, args: argparse.Namespace, int8: frozenset[str]) -> tuple[dict, dict]:
-        from t2m.export.masked_exporter import MaskedDecoding, export_masked_from_runs
+        from t2m.export.families.masked import MaskedDecoding, export_masked_from_runs
 
         decoding = MaskedDecoding(steps=10 if args.steps is None else args.steps,
                                   guidance=4.0 if args.guidance is None else args.guidance,

@@ -175,12 +175,12 @@ def test_cancelled_and_bad_jobs():
 def test_seeded_sampling_is_the_same_through_modules_and_graphs(tmp_path):
     """Not only greedy: with the same seed the PyTorch modules and their ONNX graphs draw the same tokens."""
     torch = pytest.importorskip("torch")
-    from t2m.export.graph_export import ort_session
-    from t2m.export.onnx_masked import export_masked, export_residual
-    from t2m.model.masked_sampling import generate_token_maps
+    from t2m.export.graphs.export import ort_session
+    from t2m.export.graphs.masked import export_masked, export_residual
     from t2m.model.networks.masked_transformer import MaskedTransformer
     from t2m.model.networks.residual_transformer import ResidualTransformer
     from t2m.model.networks.token_transformer import TokenTransformerConfig
+    from t2m.model.sampling.masked import generate_token_maps
     from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
     torch.manual_seed(0)

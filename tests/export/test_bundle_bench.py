@@ -7,8 +7,10 @@ from pathlib import Path
 import pytest
 
 from t2m.cli.main import main as t2m
-from t2m.export.bundle_bench import CASES, run_bundle_bench
-from t2m.export.random_bundle import build_random_bundle, build_random_hifigpt_bundle, build_random_masked_bundle
+from t2m.export.bench.bundles import CASES, run_bundle_bench
+from t2m.export.families.gpt_random import build_random_bundle
+from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
+from t2m.export.families.masked_random import build_random_masked_bundle
 
 
 @pytest.fixture(scope="module")

@@ -11,12 +11,12 @@ import onnx
 import pytest
 
 from t2m.bundle import BundleError
-from t2m.export.bundle import prepare_out_dir, write_bundle
-from t2m.export.graph_export import ort_session
-from t2m.export.onnx_text import tokenize
-from t2m.export.random_bundle import build_random_bundle
-from t2m.export.verify import main as verify_main
-from t2m.export.verify import verify_bundle
+from t2m.export.families.gpt_random import build_random_bundle
+from t2m.export.graphs.export import ort_session
+from t2m.export.graphs.text import tokenize
+from t2m.export.writing.bundle import prepare_out_dir, write_bundle
+from t2m.export.writing.verify import main as verify_main
+from t2m.export.writing.verify import verify_bundle
 
 
 def _copy(bundle: Path, tmp_path: Path) -> Path:
@@ -151,7 +151,8 @@ def test_a_failed_export_leaves_the_earlier_bundle_untouched(tmp_path):
 
 
 def _mismatched_export(out: Path) -> None:
-    from t2m.export.exporter import export_bundle, tiny_text_source
+    from t2m.export.families.gpt import export_bundle
+    from t2m.export.kit.text_sources import tiny_text_source
     from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 

@@ -7,8 +7,8 @@ import json
 from export_run_fixtures import make_runs
 
 from t2m.cli.main import main as t2m
-from t2m.export.exporter import export_from_runs
-from t2m.export.verify import verify_bundle
+from t2m.export.families.gpt import export_from_runs
+from t2m.export.writing.verify import verify_bundle
 
 
 def test_export_from_runs_writes_the_contract_manifest(exported_runs):
@@ -32,7 +32,7 @@ def test_export_from_runs_writes_the_contract_manifest(exported_runs):
 
 
 def test_no_condition_dropout_means_no_unconditional_branch(tmp_path):
-    from t2m.export.exporter import tiny_text_source
+    from t2m.export.kit.text_sources import tiny_text_source
 
     vq_run, gpt_run, _ = make_runs(tmp_path, cond_drop=0.0, length_conditioning=False)
     manifest, checks = export_from_runs(vq_run, gpt_run, tmp_path / "b", text_source=tiny_text_source(384, 64),

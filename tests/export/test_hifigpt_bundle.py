@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.random_bundle import random_hifigpt_models
-from t2m.export.verify import verify_bundle
+from t2m.export.families.hifigpt_random import random_hifigpt_models
+from t2m.export.writing.verify import verify_bundle
 
 torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")
 def graphs(tmp_path_factory) -> tuple[dict, Path]:
-    from t2m.export.onnx_hifigpt import export_residual_step, export_temporal_step
+    from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step
 
     models = random_hifigpt_models(depth=4, shared_codebook=False, seed=1)
     out = tmp_path_factory.mktemp("graphs")
@@ -29,7 +29,7 @@ def graphs(tmp_path_factory) -> tuple[dict, Path]:
 
 @pytest.mark.parametrize("guidance", [1.0, 3.0])
 def test_a_seeded_guided_rollout_is_identical_through_the_graphs(graphs, guidance):
-    from t2m.export.onnx_hifigpt import rollout_parity
+    from t2m.export.graphs.hifigpt import rollout_parity
 
     models, out = graphs
     parity = rollout_parity(models["model"], out / "temporal_step.onnx", out / "residual_step.onnx", guidance,
@@ -40,8 +40,8 @@ def test_a_seeded_guided_rollout_is_identical_through_the_graphs(graphs, guidanc
 
 
 def test_the_step_graphs_take_any_batch_and_cache_length(graphs):
-    from t2m.export.onnx_hifigpt import onnx_steps
-    from t2m.model.hifigpt_sampling import TorchResidualGptStep, TorchTemporalStep
+    from t2m.export.graphs.hifigpt import onnx_steps
+    from t2m.model.sampling.hifigpt import TorchResidualGptStep, TorchTemporalStep
 
     models, out = graphs
     model = models["model"]
@@ -64,8 +64,8 @@ def test_the_step_graphs_take_any_batch_and_cache_length(graphs):
 
 
 def test_the_decoder_reads_b_t_r_codes_and_unused_depths(tmp_path):
-    from t2m.export.graph_export import ort_session
-    from t2m.export.onnx_decoder import export_decoder
+    from t2m.export.graphs.decoder import export_decoder
+    from t2m.export.graphs.export import ort_session
 
     models = random_hifigpt_models(depth=3)
     vq, mean, std = models["vq"], models["mean"], models["std"]
@@ -108,9 +108,9 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture
 def tiny_text(monkeypatch):
-    from t2m.export.exporter import tiny_text_source
+    from t2m.export.kit.text_sources import tiny_text_source
 
-    monkeypatch.setattr("t2m.export.exporter.minilm_text_source", lambda: tiny_text_source(32, 32))
+    monkeypatch.setattr("t2m.export.kit.text_sources.minilm_text_source", lambda: tiny_text_source(32, 32))
 
 
 def test_t2m_export_family_hifigpt_from_runs(runs, tmp_path, tiny_text, capsys):

@@ -15,7 +15,7 @@ import torch
 from onnx import TensorProto, helper
 
 from t2m.bundle import BundleError, read_manifest, required_files
-from t2m.export.verify import verify_bundle
+from t2m.export.writing.verify import verify_bundle
 from t2m.service.engine.engine import OnnxEngine
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
@@ -27,7 +27,7 @@ def one_thread():
 
 @pytest.fixture(scope="module")
 def masked_2d(tmp_path_factory) -> Path:
-    from t2m.export.random_bundle import build_random_masked_bundle
+    from t2m.export.families.masked_random import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "2d", check_parity=True)
 
@@ -35,7 +35,7 @@ def masked_2d(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def masked_1d(tmp_path_factory) -> Path:
     """MoMask's variant: one column, a single-layer VQ (no residual.onnx), no length estimator."""
-    from t2m.export.random_bundle import build_random_masked_bundle
+    from t2m.export.families.masked_random import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "1d", variant="1d", residual_layers=1,
                                       length_estimator=False)
@@ -82,8 +82,8 @@ def test_the_1d_bundle_has_one_column_and_no_residual_or_length_graph(masked_1d)
 
 
 def test_the_1d_residual_variant_decodes_one_column_maps(tmp_path):
-    from t2m.export.graph_export import ort_session
-    from t2m.export.random_bundle import build_random_masked_bundle
+    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.export.graphs.export import ort_session
 
     bundle = build_random_masked_bundle(tmp_path / "b", variant="1d", residual_layers=2, length_estimator=False,
                                         check_parity=True)
@@ -190,9 +190,9 @@ def masked_runs(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture
 def tiny_text(monkeypatch):
-    from t2m.export.exporter import tiny_text_source
+    from t2m.export.kit.text_sources import tiny_text_source
 
-    monkeypatch.setattr("t2m.export.exporter.minilm_text_source", lambda: tiny_text_source(32, 32))
+    monkeypatch.setattr("t2m.export.kit.text_sources.minilm_text_source", lambda: tiny_text_source(32, 32))
 
 
 def test_t2m_export_family_masked_from_runs(masked_runs, tmp_path, tiny_text, capsys):

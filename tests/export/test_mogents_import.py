@@ -33,9 +33,9 @@ from served_reference import Generator, clip_features, compare_served, masked_mo
 
 from t2m.cli.main import main as t2m
 from t2m.decoding.masked import remask_counts
-from t2m.export.graph_export import ort_session
-from t2m.export.mogents_files import locate_release
-from t2m.export.mogents_import import import_mogents, load_mogents, release_decoding
+from t2m.export.graphs.export import ort_session
+from t2m.export.importers.mogents import import_mogents, load_mogents, release_decoding
+from t2m.export.importers.mogents_files import locate_release
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
@@ -301,7 +301,7 @@ def test_settings_are_the_releases(release):
 
 
 def test_cli_import_gives_a_verified_two_branch_bundle(imported):
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
 
     bundle, printed = imported
     manifest = verify_bundle(bundle)
@@ -362,7 +362,7 @@ def test_the_service_gives_mogents_token_maps_and_motion(release, imported):
 def test_a_drawn_mask_id_clips_the_motions_map(tmp_path):
     """A release whose 2D residual model prefers the mask id at layer 2: MoGenTS clips the motion's map to
     [0, K - 1] (so layer 2 holds K - 1), and the loop over our modules does the same."""
-    from t2m.model.masked_sampling import generate_token_maps
+    from t2m.model.sampling.masked import generate_token_maps
 
     release = make_release(tmp_path, length=False)
     s, states = release.sizes, release.states

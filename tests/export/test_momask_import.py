@@ -30,10 +30,10 @@ from served_reference import Generator, clip_features, compare_served, masked_mo
 
 from t2m.cli.main import main as t2m
 from t2m.decoding.masked import remask_counts
-from t2m.export.graph_export import ort_session
-from t2m.export.momask_files import kit_fps_note, locate_release
-from t2m.export.momask_import import import_momask, load_momask, release_decoding, release_top_k
-from t2m.model.masked_sampling import generate_token_maps
+from t2m.export.graphs.export import ort_session
+from t2m.export.importers.momask import import_momask, load_momask, release_decoding, release_top_k
+from t2m.export.importers.momask_files import kit_fps_note, locate_release
+from t2m.model.sampling.masked import generate_token_maps
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
@@ -240,7 +240,7 @@ def test_top_k_and_settings_are_the_releases():
 
 
 def test_cli_import_gives_a_verified_bundle_with_the_release_settings(imported):
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
 
     bundle, printed = imported
     manifest = verify_bundle(bundle)

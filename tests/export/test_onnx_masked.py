@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.onnx_masked import (
+from t2m.export.graphs.masked import (
     decode_parity,
     export_joint_decoder,
     export_masked,

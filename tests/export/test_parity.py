@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.onnx_decoder import export_decoder
-from t2m.export.onnx_gpt import export_gpt_step
-from t2m.export.parity import decoder_parity, gpt_parity, text_parity
+from t2m.export.graphs.decoder import export_decoder
+from t2m.export.graphs.gpt import export_gpt_step
+from t2m.export.kit.parity import decoder_parity, gpt_parity, text_parity
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
@@ -77,7 +77,7 @@ def test_minilm_text_graph_matches_the_pytorch_encoder(exported_runs, minilm_enc
 @pytest.mark.slow
 def test_the_dynamo_exporter_gives_the_same_step_graph(tmp_path, monkeypatch):
     """The alternative exporter (graph_export.USE_DYNAMO) also passes parity, P = 0 included (minutes: slow)."""
-    import t2m.export.graph_export as graph_export
+    import t2m.export.graphs.export as graph_export
 
     monkeypatch.setattr(graph_export, "USE_DYNAMO", True)
     torch.manual_seed(0)

@@ -10,18 +10,18 @@ import onnx
 import pytest
 import torch
 
-from t2m.export.graph_export import ort_session
-from t2m.export.int8_bundle import quantize_bundle_gpt
-from t2m.export.onnx_gpt import export_gpt_step
-from t2m.export.parity import ort_greedy_rollout
-from t2m.export.quantize import (
+from t2m.export.families.gpt_random import build_random_bundle
+from t2m.export.graphs.export import ort_session
+from t2m.export.graphs.gpt import export_gpt_step
+from t2m.export.kit.parity import ort_greedy_rollout
+from t2m.export.writing.int8 import quantize_bundle_gpt
+from t2m.export.writing.quantize import (
     GptInt8Report,
     gpt_int8_report,
     quantize_graph,
     quantize_graph_int4,
     text_int8_report,
 )
-from t2m.export.random_bundle import build_random_bundle
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from tests.export.non_vnni import ReferenceSession
 

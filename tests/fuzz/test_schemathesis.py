@@ -52,7 +52,7 @@ schema = schemathesis.openapi.from_dict(_published_schema())
 def live_url(tmp_path_factory):
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from t2m.export.random_bundle import build_random_bundle
+    from t2m.export.families.gpt_random import build_random_bundle
 
     bundle = build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
     with running_server(bundle, env={"T2M_API_KEY": API_KEY},

@@ -106,9 +106,9 @@ def test_quickgelu_is_what_the_tower_uses(encoder, small_state):
 
 
 def test_onnx_text_graph_matches_pytorch(encoder, tmp_path):
-    from t2m.export.exporter import encoder_text_source
-    from t2m.export.graph_export import ort_session
-    from t2m.export.onnx_text import tokenize
+    from t2m.export.graphs.export import ort_session
+    from t2m.export.graphs.text import tokenize
+    from t2m.export.kit.text_sources import encoder_text_source
 
     entry = encoder_text_source(encoder).write(tmp_path)
     assert entry == {"kind": "clip", "dim": 48, "max_length": 77, "pooling": "eot", "normalize": False,

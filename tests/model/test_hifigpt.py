@@ -11,9 +11,9 @@ import pytest
 import torch
 
 from t2m.cli.main import main
-from t2m.model.hifigpt_sampling import sample_code_maps
 from t2m.model.networks.hifigpt import HiFiGPT, HiFiGPTConfig, vq_codebooks, vq_fields
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+from t2m.model.sampling.hifigpt import sample_code_maps
 from t2m.model.training.checkpoint import load_model, save_checkpoint
 from t2m.model.training.train_hifigpt import corrupt_steps, hifigpt_loss
 

@@ -45,7 +45,7 @@ def runs(tmp_path) -> dict[str, Path]:
 
 
 def test_hifigpt_eval_writes_every_row_through_the_shared_loop(runs, tmp_path, monkeypatch):
-    import t2m.model.hifigpt_sampling as sampling
+    import t2m.model.sampling.hifigpt as sampling
 
     calls: list[list[int | None]] = []
     real = sampling.sample_code_rows

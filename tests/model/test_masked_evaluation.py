@@ -75,7 +75,7 @@ def fast_text(monkeypatch):
 def loop_calls(monkeypatch) -> list[int]:
     """Segments per call of the shared numpy loop (t2m.decoding.masked.sample_token_maps, as the PyTorch entry point
     imports it); the GPT sampler must not run at all."""
-    import t2m.model.masked_sampling as masked_sampling
+    import t2m.model.sampling.masked as masked_sampling
 
     calls: list[int] = []
     real = masked_sampling.sample_token_maps
@@ -88,7 +88,7 @@ def loop_calls(monkeypatch) -> list[int]:
         raise AssertionError("the masked family must not sample with the GPT")
 
     monkeypatch.setattr(masked_sampling, "sample_token_maps", counted)
-    monkeypatch.setattr("t2m.model.sampling.sample_codes", no_gpt)
+    monkeypatch.setattr("t2m.model.sampling.gpt.sample_codes", no_gpt)
     return calls
 
 

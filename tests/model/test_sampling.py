@@ -1,4 +1,4 @@
-"""The PyTorch reference sampler (t2m.model.sampling over t2m.decoding.gpt): the End rule, greedy parity with the
+"""The PyTorch reference sampler (t2m.model.sampling.gpt over t2m.decoding.gpt): the End rule, greedy parity with the
 full forward, top-k, seeds."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import torch
 
 from t2m.decoding.tokens import guided_logits, sample_tokens
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.sampling import sample_codes
+from t2m.model.sampling.gpt import sample_codes
 
 torch.set_num_threads(1)
 K = 12

@@ -77,7 +77,7 @@ def test_the_default_answers_without_model_and_seeds_repeat(served):
 def test_shared_text_files_are_links_to_the_default_bundle(folder):
     """The embedded bundles use the default's text encoder, tokenizer and caption index: one copy on disk (links),
     each bundle still verified by its own manifest's hashes (the service loads through the link)."""
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
 
     bundle = EMBEDDED_BUNDLES[folder]
     for name in ("text_encoder.onnx", "tokenizer.json", "caption_index.npz"):

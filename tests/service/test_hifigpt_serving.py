@@ -40,7 +40,7 @@ def decoded(engine, monkeypatch) -> list[np.ndarray]:
 
 def test_the_bundle_states_its_family_graphs_and_parity(hifigpt_bundle):
     from t2m.bundle import read_manifest
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
 
     raw = verify_bundle(hifigpt_bundle)
     assert raw["family"] == "hifigpt" and raw["frames_per_token"] == 8 and raw["residual_layers"] == 3
@@ -83,8 +83,8 @@ def test_a_stream_is_one_decode_of_the_concatenated_code_maps(engine, decoded):
 def test_served_codes_equal_the_pytorch_reference(engine, decoded, hifigpt_build):
     from t2m.decoding.hifigpt import sample_code_rows
     from t2m.decoding.lockstep import SamplingJob
-    from t2m.export.random_bundle import random_hifigpt_models
-    from t2m.model.hifigpt_sampling import TorchResidualGptStep, TorchTemporalStep
+    from t2m.export.families.hifigpt_random import random_hifigpt_models
+    from t2m.model.sampling.hifigpt import TorchResidualGptStep, TorchTemporalStep
 
     segments = [*STREAM[:2], ("a person bows", None)]
     engine.generate(_request(segments, seed=5, guidance=2.5, top_k=6))

@@ -16,7 +16,7 @@ STREAM = [("a person walks forward", 1.0), ("a person waves with the right hand"
 @pytest.fixture(scope="module")
 def masked_1d_bundle(tmp_path_factory) -> Path:
     """MoMask's variant without a length estimator."""
-    from t2m.export.random_bundle import build_random_masked_bundle
+    from t2m.export.families.masked_random import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "1d", variant="1d", residual_layers=2,
                                       length_estimator=False)
@@ -49,7 +49,7 @@ def decoded(engine, monkeypatch) -> list[np.ndarray]:
 
 
 def test_both_variants_load_and_verify(masked_bundle, masked_1d_bundle):
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
     from t2m.service.engine.engine import OnnxEngine
 
     for bundle in (masked_bundle, masked_1d_bundle):
@@ -80,8 +80,8 @@ def test_the_same_seed_gives_the_same_motion_alone_or_batched(engine):
 
 
 def test_served_tokens_equal_the_pytorch_reference(engine, decoded, masked_build):
-    from t2m.export.random_bundle import random_masked_models
-    from t2m.model.masked_sampling import generate_token_maps
+    from t2m.export.families.masked_random import random_masked_models
+    from t2m.model.sampling.masked import generate_token_maps
 
     models = random_masked_models(**{k: v for k, v in masked_build.items() if k != "steps"})
     engine.generate(_request(STREAM, seed=5, guidance=3.0))
@@ -164,8 +164,8 @@ def test_a_gpt_and_a_masked_bundle_served_together(random_bundle, masked_bundle,
 
 
 def test_the_1d_variant_serves_the_pytorch_reference_tokens(masked_1d_bundle, monkeypatch):
-    from t2m.export.random_bundle import random_masked_models
-    from t2m.model.masked_sampling import generate_token_maps
+    from t2m.export.families.masked_random import random_masked_models
+    from t2m.model.sampling.masked import generate_token_maps
     from t2m.service.engine.engine import OnnxEngine
 
     engine = OnnxEngine.load(masked_1d_bundle, intra_op_threads=1)

@@ -16,7 +16,7 @@ from rehash_bundle import main, rehash  # noqa: E402
 
 def test_an_edited_card_verifies_again_after_rehash(random_bundle, tmp_path):
     from t2m.bundle import BundleError
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
 
     bundle = tmp_path / "bundle"
     shutil.copytree(random_bundle, bundle)

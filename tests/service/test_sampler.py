@@ -126,7 +126,8 @@ def torch_bundle(tmp_path_factory):
     """A tiny GPT (End logits amplified so free segments end at varied lengths) exported next to its module."""
     import torch
 
-    from t2m.export.exporter import export_bundle, tiny_text_source
+    from t2m.export.families.gpt import export_bundle
+    from t2m.export.kit.text_sources import tiny_text_source
     from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
@@ -149,7 +150,7 @@ def torch_bundle(tmp_path_factory):
 def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
     import torch
 
-    from t2m.model.sampling import sample_codes as torch_sample_codes
+    from t2m.model.sampling.gpt import sample_codes as torch_sample_codes
     from t2m.service.engine.engine import OnnxEngine
 
     path, gpt = torch_bundle
@@ -170,7 +171,7 @@ def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
 def test_seeded_sampling_matches_pytorch_reference(torch_bundle, guidance, temperature, top_k):
     """Not only greedy: with the same seed, the service (onnxruntime) and the PyTorch reference draw the same codes,
     because both run one loop (t2m.decoding.gpt) and their logits agree to ~1e-6."""
-    from t2m.model.sampling import sample_codes as torch_sample_codes
+    from t2m.model.sampling.gpt import sample_codes as torch_sample_codes
     from t2m.service.engine.engine import OnnxEngine
 
     path, gpt = torch_bundle

@@ -37,7 +37,7 @@ def test_index_round_trip_and_nearest(tmp_path):
 
 
 def test_threshold_choice_and_rates():
-    from t2m.export.caption_index import choose_threshold, rates
+    from t2m.export.writing.caption_index import choose_threshold, rates
 
     known, unknown = np.array([0.9, 0.8, 0.75, 0.6]), np.array([0.5, 0.55, 0.7])
     threshold = choose_threshold(known, unknown)
@@ -75,7 +75,7 @@ def test_reject_mode_refuses_with_the_segment_named(default_model):
 
 def test_shipped_threshold_reproduces_the_recorded_rates(default_model, default_engine):
     """The card's false/missed warning counts, recomputed from the shipped index and the phrasings file."""
-    from t2m.export.caption_index import DEFAULT_PHRASINGS
+    from t2m.export.writing.caption_index import DEFAULT_PHRASINGS
 
     manifest = json.loads((default_model / "manifest.json").read_text())
     recorded = manifest["caption_index"]["calibration"]
@@ -128,7 +128,7 @@ def test_index_captions_command_writes_a_verified_indexed_bundle(random_bundle, 
     from synthetic_motion_data import make_dataset
 
     from t2m.cli.main import main
-    from t2m.export.verify import verify_bundle
+    from t2m.export.writing.verify import verify_bundle
     from t2m.service.engine.engine import OnnxEngine
 
     bundle = tmp_path / "bundle"

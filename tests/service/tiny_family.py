@@ -122,9 +122,9 @@ def export_tiny_bundle(out_dir: Path, *, seed: int = 0, name: str = "t2m-tiny-te
     import torch
     from torch import nn
 
-    from t2m.export.bundle import render_family_card, write_bundle
-    from t2m.export.graph_export import export_graph
-    from t2m.export.onnx_text import export_tiny_text_encoder
+    from t2m.export.graphs.export import export_graph
+    from t2m.export.graphs.text import export_tiny_text_encoder
+    from t2m.export.writing.bundle import render_family_card, write_bundle
 
     torch.manual_seed(seed)
     feature_dim, frames_per_token, text_dim = 263, 4, 32

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--threads must be >= 1")
     if args.bundle:
         return run_bundles(args)
-    from t2m.export.bench import default_cache_dir, run_bench
+    from t2m.export.bench.models import default_cache_dir, run_bench
 
     cache_dir = None if args.no_cache else (args.cache_dir or default_cache_dir())
     run_bench(quick=args.quick, threads=args.threads, include_release=not args.no_release, cache_dir=cache_dir)
@@ -48,7 +48,7 @@ def run_bundles(args: argparse.Namespace) -> int:
     from t2m.bundle import BundleError
     from t2m.bundles import resolve_bundle
     from t2m.cli.main import CliError
-    from t2m.export.bundle_bench import run_bundle_bench
+    from t2m.export.bench.bundles import run_bundle_bench
 
     if args.repeats < 1:
         raise CliError("--repeats must be >= 1")

@@ -128,7 +128,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     started = time.time()
     reader = MotionDirectory(args.data, args.split)
     if family is None:
-        from t2m.export.bundle_family import load_bundle_models
+        from t2m.export.evaluation import load_bundle_models
 
         models = load_bundle_models(args.evaluator, args.bundle, threads=args.threads)
     else:

@@ -92,13 +92,13 @@ def register_momask(sources: argparse._SubParsersAction) -> None:
 
 
 def run_momask(args: argparse.Namespace) -> int:
-    from t2m.export.momask_import import import_momask
+    from t2m.export.importers.momask import import_momask
 
     return _run_release("MoMask", import_momask, args)
 
 
 def run_mogents(args: argparse.Namespace) -> int:
-    from t2m.export.mogents_import import import_mogents
+    from t2m.export.importers.mogents import import_mogents
 
     return _run_release("MoGenTS", import_mogents, args)
 
@@ -129,7 +129,7 @@ def _report(release: str, manifest: dict, output: Path) -> None:
 def run_t2m_gpt(args: argparse.Namespace) -> int:
     import logging
 
-    from t2m.export.t2m_gpt_import import import_t2m_gpt
+    from t2m.export.importers.t2m_gpt import import_t2m_gpt
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     manifest, checks = import_t2m_gpt(

@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from t2m.export.int8_bundle import quantize_bundle_gpt
+    from t2m.export.writing.int8 import quantize_bundle_gpt
 
     if args.output.resolve() == args.bundle.resolve():
         raise CliError("-o must differ from the bundle: the float32 original is what the copy is measured against")

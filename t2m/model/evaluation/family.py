@@ -41,7 +41,7 @@ class CodeFamily(Protocol):
 
 
 class CodeDecoder(Protocol):
-    """Codes -> raw motion features without a VQ module: a served bundle's decoder.onnx (t2m.export.bundle_family).
+    """Codes -> raw motion features without a VQ module: a served bundle's decoder.onnx (t2m.export.evaluation).
     An evaluation decoding through one has no VQ encoder, so it has no VQ-reconstruction row."""
 
     frames_per_token: int

@@ -1,4 +1,4 @@
-"""The GPT family in `t2m eval`: T2M-GPT's autoregressive sampler (t2m.model.sampling, the shared GPT loop)."""
+"""The GPT family in `t2m eval`: T2M-GPT's autoregressive sampler (t2m.model.sampling.gpt, the shared GPT loop)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -33,7 +33,7 @@ class GptFamily:
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:
-        from t2m.model.sampling import sample_codes
+        from t2m.model.sampling.gpt import sample_codes
 
         return sample_codes(self.gpt, torch.from_numpy(np.asarray(cond, np.float32)), [int(t) for t in tokens],
                             guidance=guidance, temperature=temperature, top_k=top_k, rng=rng)

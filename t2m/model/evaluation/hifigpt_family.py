@@ -35,7 +35,7 @@ class HiFiGPTFamily:
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:
-        from t2m.model.hifigpt_sampling import sample_code_maps
+        from t2m.model.sampling.hifigpt import sample_code_maps
 
         return sample_code_maps(self.model, np.asarray(cond, np.float32), [int(t) for t in tokens],
                                 guidance=guidance, temperature=temperature, top_k=top_k, rng=rng)

@@ -1,6 +1,6 @@
 """The masked family in `t2m eval` (MoGenTS / MoMask): token maps from the shared numpy loop.
 
-Generation goes through `t2m.model.masked_sampling.generate_token_maps`, i.e. `t2m.decoding.masked.sample_token_maps`
+Generation goes through `t2m.model.sampling.masked.generate_token_maps`, i.e. `t2m.decoding.masked.sample_token_maps`
 with the modules as its steps: the loop the service runs over the ONNX graphs, so the evaluated recipe (re-masking
 schedule, guidance per stage, top-k, temperature, residual layers) is the served one. Each motion is one segment of
 its own text and length; a segment's map does not depend on the other segments of the batch (only the order of the
@@ -83,7 +83,7 @@ class MaskedFamily:
 
     def codes(self, cond: np.ndarray, tokens: Sequence[int], guidance: float, temperature: float,
               top_k: int | None, rng: np.random.Generator) -> list[Any]:
-        from t2m.model.masked_sampling import generate_token_maps
+        from t2m.model.sampling.masked import generate_token_maps
 
         rows = [int(t) for t in tokens]
         maps = generate_token_maps(self.masked, self.residual, np.asarray(cond, np.float32), rows,

@@ -3,7 +3,7 @@
 Vocabulary: codes 0..K-1, ``mask_id`` = K (a token still to be predicted), ``pad_id`` = K + 1 (beyond the motion's
 length; rows past ``length`` are set to it here, so callers may leave anything there, -1 included). Logits cover
 the K codes only. The text feature enters as one condition row (``cond_emb``; zeros = the null condition that
-classifier-free guidance subtracts). Training masks tokens on the cosine schedule (t2m.model.masking); sampling
+classifier-free guidance subtracts). Training masks tokens on the cosine schedule (t2m.model.training.masking); sampling
 starts from a map of mask tokens and fills it in a few confident steps.
 
 Key names follow MoMask's ``t2m_transformer`` / MoGenTS's ``t2m_transformer_ts``: ``token_emb`` [K + 2, code_dim],

@@ -1,6 +1,6 @@
 """Train the masked transformer on a VQ's first-layer codes (MoMask's 1D tokens or MoGenTS's joint map).
 
-Per batch (t2m.model.masking): a mask ratio gamma = cos(pi tau / 2), tau ~ U(0, 1), per motion; whole frames
+Per batch (t2m.model.training.masking): a mask ratio gamma = cos(pi tau / 2), tau ~ U(0, 1), per motion; whole frames
 first, then random tokens in the other frames (MoGenTS's temporal-spatial masking; frames only for 1D maps); BERT's
 80 / 10 / 10 replacement of the masked tokens; condition dropout (--cond-drop, MoMask 0.1) for guidance.
 loss = cross entropy over the codes at the masked tokens.
@@ -29,7 +29,7 @@ def masked_loss(
     import torch.nn.functional as F
 
     from t2m.model.data.token_maps import trim_rows
-    from t2m.model.masking import bert_replace, mask_ratio, temporal_spatial_mask
+    from t2m.model.training.masking import bert_replace, mask_ratio, temporal_spatial_mask
 
     length = batch["length"]
     codes = trim_rows(batch["codes"], length)[..., 0]  # first layer [B, T, C]

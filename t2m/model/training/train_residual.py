@@ -1,6 +1,7 @@
 """Train the residual transformer: RVQ layer q from layers 0..q-1 of a VQ's codes (MoMask's design).
 
-Per batch: a layer q in 1..R-1 per motion (t2m.model.masking.residual_layer_schedule, low layers more often), the
+Per batch: a layer q in 1..R-1 per motion (t2m.model.training.masking.residual_layer_schedule, low layers more
+often), the
 true codes of layers below q as input, condition dropout (--cond-drop, MoMask 0.2) for guidance.
 loss = cross entropy over layer q's codes at every real token (no masking: the whole layer is predicted at once).
 Validation: the same on fixed batches and layers.
@@ -28,7 +29,7 @@ def residual_loss(
     import torch.nn.functional as F
 
     from t2m.model.data.token_maps import trim_rows
-    from t2m.model.masking import residual_layer_schedule
+    from t2m.model.training.masking import residual_layer_schedule
 
     length = batch["length"]
     codes = trim_rows(batch["codes"], length)  # [B, T, C, R]

@@ -1,0 +1,1 @@
+"""What every exporter and importer shares: text sources, training-run records, parity and int8 checks."""

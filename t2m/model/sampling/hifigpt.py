@@ -1,0 +1,68 @@
+"""The PyTorch reference sampler of T2M-HiFiGPT: HiFiGPT's step methods as the steps of the shared loop
+(t2m.decoding.hifigpt).
+
+The service runs the same loop over temporal_step.onnx and residual_step.onnx, so the recipe (guidance on code and
+stop logits, temperature, top-k, the stop rule, the order of random draws) is written once; for the same seed the
+reference and the service choose the same codes and the same stops whenever their logits agree.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from t2m.decoding.hifigpt import sample_code_rows
+from t2m.model.networks.hifigpt import HiFiGPT
+from t2m.model.sampling.gpt import evaluating, only_job, reference_job
+
+__all__ = ["TorchResidualGptStep", "TorchTemporalStep", "sample_code_maps"]
+
+
+class TorchTemporalStep:
+    """HiFiGPT.temporal_step with numpy in and out (the cache stays a float32 array between steps)."""
+
+    def __init__(self, model: HiFiGPT) -> None:
+        self.model = model
+        self.depth = model.config.depth
+
+    def empty_cache(self, batch: int) -> np.ndarray:
+        return self.model.empty_cache("temporal", batch).numpy()
+
+    @torch.no_grad()
+    def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lengths = torch.from_numpy(length) if self.model.config.length_conditioning else None
+        context, stop, present = self.model.temporal_step(torch.from_numpy(cond), torch.from_numpy(codes), position,
+                                                          lengths, torch.from_numpy(np.ascontiguousarray(past)))
+        return context.numpy(), stop.numpy(), present.numpy()
+
+
+class TorchResidualGptStep:
+    """HiFiGPT.residual_step with numpy in and out."""
+
+    def __init__(self, model: HiFiGPT) -> None:
+        self.model = model
+
+    def empty_cache(self, batch: int) -> np.ndarray:
+        return self.model.empty_cache("residual", batch).numpy()
+
+    @torch.no_grad()
+    def __call__(self, context: np.ndarray, code: np.ndarray, depth: int,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        logits, present = self.model.residual_step(torch.from_numpy(np.ascontiguousarray(context)),
+                                                   torch.from_numpy(code), depth,
+                                                   torch.from_numpy(np.ascontiguousarray(past)))
+        return logits.numpy(), present.numpy()
+
+
+def sample_code_maps(model: HiFiGPT, cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int | None],
+                     guidance: float = 1.0, temperature: float = 1.0, top_k: int | None = None,
+                     rng: np.random.Generator | int | None = None, greedy: bool = False) -> list[np.ndarray]:
+    """One code map [steps, R] per condition row (cond [B, Dt]); target_tokens[i] steps for row i, None = free length
+    (the stop head decides). temperature 0 or greedy=True picks the argmax and stops when the stop logit is > 0."""
+    c = model.config
+    job = reference_job(cond, target_tokens, c.max_tokens, guidance, temperature, top_k, rng, greedy)
+    with evaluating(model):
+        return only_job(sample_code_rows(TorchTemporalStep(model), TorchResidualGptStep(model), [job],
+                                         c.max_tokens))
