@@ -242,8 +242,10 @@ class MaskedFamily(ModelFamily):
 
     def describe(self, manifest: Any, guidance: float) -> str:
         m = manifest.settings
+        branches = "".join(f", + branch {b.name} (top-k {b.top_k} / {b.residual_top_k})" for b in m.branches)
         return (f"masked: {m.columns} column(s) x {manifest.residual_layers} layers, {m.steps} steps, guidance "
-                f"{m.guidance:g} / residual {m.residual_guidance:g}")
+                f"{m.guidance:g} / residual {m.residual_guidance:g}, top-k {m.top_k} / {m.residual_top_k}{branches}, "
+                f"length estimator {'yes' if m.length_estimator else 'no'}")
 
     def serve(self, bundle: Any) -> Any:
         from t2m.service.engine.masked_codes import MaskedCodes

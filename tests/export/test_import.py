@@ -19,13 +19,13 @@ from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_rele
 from t2m.cli.main import main as t2m
 from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.graphs.export import ort_session
+from t2m.export.importers.kit import strip_prefix
 from t2m.export.importers.t2m_gpt import (
     CLIP_REQUIRED,
     import_t2m_gpt,
     infer_gpt_config,
     infer_vq_config,
     load_release,
-    strip_prefix,
 )
 from t2m.export.kit.parity import ort_greedy_rollout
 from t2m.model.networks.gpt import GPTConfig, MotionGPT

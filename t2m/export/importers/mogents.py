@@ -26,6 +26,7 @@ from typing import Any
 import torch
 
 from t2m.export.families.masked import MaskedDecoding, MaskedExportChecks, TokenBranch, export_masked_bundle
+from t2m.export.importers.kit import load_strict, read_stat, require_tensor, shape_text
 from t2m.export.importers.mogents_card import release_notes
 from t2m.export.importers.mogents_files import ImportedMogents, locate_release, read_states
 from t2m.export.importers.momask import (
@@ -34,15 +35,12 @@ from t2m.export.importers.momask import (
     RELEASE_STEPS,
     encoder_sizes,
     load_length,
-    load_strict,
     read_positions,
     read_release,
     release_top_k,
-    require_tensor,
-    shape_text,
     token_config,
 )
-from t2m.export.importers.momask_files import MomaskFiles, read_stat
+from t2m.export.importers.momask_files import MomaskFiles
 from t2m.export.importers.t2m_gpt import RELEASE_DILATION_GROWTH
 from t2m.model.networks.fused_vqvae import FusedVQConfig, FusedVQVAE
 from t2m.model.networks.masked_transformer import MaskedTransformer

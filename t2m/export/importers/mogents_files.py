@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from t2m.export.importers.kit import load_checkpoint_entries
 from t2m.export.importers.momask_files import MomaskFiles, release_files
-from t2m.export.importers.t2m_gpt import load_checkpoint_entries
 from t2m.model.networks.fused_vqvae import FusedVQVAE
 from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer

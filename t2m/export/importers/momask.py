@@ -24,16 +24,15 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import torch
-from torch import nn
 
 from t2m.export.families.masked import MaskedDecoding, MaskedExportChecks, export_masked_bundle
+from t2m.export.importers.kit import load_strict, read_stat, require_tensor, shape_text
 from t2m.export.importers.momask_card import release_notes
 from t2m.export.importers.momask_files import (
     ImportedMomask,
     MomaskFiles,
     kit_fps_note,
     locate_release,
-    read_stat,
     read_state,
 )
 from t2m.export.importers.t2m_gpt import infer_vq_config
@@ -75,18 +74,8 @@ def release_decoding(dataset: str, codebook_size: int) -> MaskedDecoding:
 
 # --------------------------------------------------------------------------------------------- tensor checks
 
-def shape_text(shape: tuple[int, ...] | torch.Size) -> str:
-    return "[" + ", ".join(str(int(n)) for n in shape) + "]"
 
 
-def require_tensor(state: Mapping[str, torch.Tensor], key: str, where: str, expected: str, ndim: int) -> torch.Tensor:
-    """A tensor the sizes are read from: present, with ``ndim`` axes."""
-    if key not in state:
-        raise ValueError(f"{where}: missing tensor '{key}' {expected}")
-    tensor = state[key]
-    if tensor.ndim != ndim:
-        raise ValueError(f"{where}: tensor '{key}' has shape {shape_text(tensor.shape)}, expected {expected}")
-    return tensor
 
 
 def _count(state: Mapping[str, torch.Tensor], pattern: str) -> int:
@@ -94,26 +83,8 @@ def _count(state: Mapping[str, torch.Tensor], pattern: str) -> int:
     return len({m.group(1) for k in state if (m := regex.fullmatch(k))})
 
 
-def check_tensors(state: Mapping[str, torch.Tensor], module: nn.Module, where: str, release: str = "MoMask") -> None:
-    """Every tensor of ``module`` in ``state`` with its shape, and nothing else: one line naming the first key that
-    is missing, has another shape (with the one expected) or is not part of the model."""
-    expected = {key: tuple(value.shape) for key, value in module.state_dict().items()}
-    for key, shape in expected.items():
-        if key not in state:
-            raise ValueError(f"{where}: missing tensor '{key}' {shape_text(shape)}")
-        if tuple(state[key].shape) != shape:
-            raise ValueError(f"{where}: tensor '{key}' has shape {shape_text(state[key].shape)}, expected "
-                             f"{shape_text(shape)}")
-    extra = sorted(set(state) - set(expected))
-    if extra:
-        raise ValueError(f"{where}: unexpected tensor '{extra[0]}' (not part of {release}'s released model)")
 
 
-def load_strict(module: nn.Module, state: Mapping[str, torch.Tensor], where: str, release: str = "MoMask") -> Any:
-    """``module`` with every tensor of ``state`` checked (check_tensors), loaded, in eval mode."""
-    check_tensors(state, module, where, release)
-    module.load_state_dict(dict(state), strict=True)  # cannot fail: every key and shape was checked
-    return module.eval()
 
 
 # ------------------------------------------------------------------------------------------------ the four models
@@ -128,7 +99,7 @@ def _vq(path: Path, allow_pickle: bool) -> tuple[MotionVQVAE, str]:
     config = infer_vq_config(state, where)
     if config.residual_layers < 2:
         raise ValueError(f"{where}: {config.residual_layers} quantiser layer; MoMask's RVQ-VAE has several")
-    return load_strict(MotionVQVAE(config), state, where), key
+    return load_strict(MotionVQVAE(config), state, where, "MoMask"), key
 
 
 def encoder_sizes(state: Mapping[str, torch.Tensor], where: str, heads: int) -> dict[str, int]:
@@ -174,7 +145,7 @@ def _masked(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tupl
     where = f"{path} ['{key}']"
     config = _token_config(vq, encoder_sizes(state, where, heads))
     read_positions(state, where, config.latent, config.max_tokens)
-    return load_strict(MaskedTransformer(config), state, where), key
+    return load_strict(MaskedTransformer(config), state, where, "MoMask"), key
 
 
 def _residual(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tuple[ResidualTransformer, str]:
@@ -185,7 +156,7 @@ def _residual(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tu
                          f"{vq.config.code_dim}] (the release's residual transformer shares its tables)")
     config = _token_config(vq, encoder_sizes(state, where, heads))
     read_positions(state, where, config.latent, config.max_tokens)
-    return load_strict(ResidualTransformer(config), state, where), key
+    return load_strict(ResidualTransformer(config), state, where, "MoMask"), key
 
 
 def load_length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEstimator, str]:
@@ -199,7 +170,7 @@ def load_length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEs
                          f"[hidden >= 4, {text_dim}]")
     config = LengthEstimatorConfig(text_dim=text_dim, hidden=hidden, max_tokens=RELEASE_MAX_TOKENS,
                                    dropout=RELEASE_DROPOUT)
-    return load_strict(LengthEstimator(config), state, where), key
+    return load_strict(LengthEstimator(config), state, where, "MoMask"), key
 
 
 def load_momask(files: MomaskFiles, heads: int = RELEASE_HEADS, allow_pickle: bool = False) -> ImportedMomask:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from t2m.export.importers.t2m_gpt import load_checkpoint_entry
+from t2m.export.importers.kit import load_checkpoint_entry
 from t2m.model.networks.length_estimator import LengthEstimator
 from t2m.model.networks.masked_transformer import MaskedTransformer
 from t2m.model.networks.residual_transformer import ResidualTransformer
@@ -153,13 +153,3 @@ def read_state(path: Path, role: str, allow_pickle: bool = False) -> tuple[str, 
     return key, {k: v for k, v in state.items() if not k.startswith("clip_model.")}
 
 
-def read_stat(path: Path, feat_dim: int) -> np.ndarray:
-    """meta/mean.npy or std.npy: [feat_dim] float32."""
-    try:
-        array = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as error:
-        raise ValueError(f"{path}: not a numpy array file ({' '.join(str(error).split())[:160]})") from None
-    array = np.asarray(array, dtype=np.float32).reshape(-1)
-    if array.shape != (feat_dim,):
-        raise ValueError(f"{path}: expected [{feat_dim}] values (the VQ's features), got {list(array.shape)}")
-    return array

@@ -15,7 +15,6 @@ says ``unconditional_branch: false`` and ``default_guidance: 1.0``.
 from __future__ import annotations
 
 import logging
-import pickle
 import re
 import shutil
 from collections.abc import Mapping
@@ -26,6 +25,7 @@ import numpy as np
 import torch
 
 from t2m.export.families.gpt import ExportChecks, export_bundle
+from t2m.export.importers.kit import load_checkpoint_entry, load_strict, strip_prefix
 from t2m.export.kit.text_sources import TextSource, clip_text_source
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
@@ -55,57 +55,12 @@ def load_checkpoint_dict(path: str | Path, key: str, allow_pickle: bool = False)
     return load_checkpoint_entry(path, (key,), allow_pickle)[1]
 
 
-def load_checkpoint_entry(path: str | Path, keys: tuple[str, ...], allow_pickle: bool = False
-                          ) -> tuple[str, dict[str, torch.Tensor]]:
-    """(the first of ``keys`` the file has, its state dict with float tensors as float32).
-
-    ``torch.load`` with ``weights_only=True``. A file holding other Python objects needs the full unpickler, which
-    can run code from the file: only with ``allow_pickle`` (``--allow-pickle``), for files from a source the user
-    trusts. A file torch cannot read at all (truncated, not a checkpoint) is named as such.
-    """
-    (entry,) = load_checkpoint_entries(path, (keys,), allow_pickle)
-    return entry
 
 
-def load_checkpoint_entries(path: str | Path, wanted: tuple[tuple[str, ...], ...], allow_pickle: bool = False
-                            ) -> list[tuple[str, dict[str, torch.Tensor]]]:
-    """:func:`load_checkpoint_entry` for several state dicts of one file (MoGenTS keeps two models in each),
-    read once: per tuple of ``wanted``, the first key the file has and its state dict."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(str(path))
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        if not allow_pickle:
-            raise ValueError(f"{path}: not loadable as plain tensors ({_first_line(error)}); if you trust the file, "
-                             "pass --allow-pickle") from error
-        log.warning("%s: loading with the full unpickler (--allow-pickle)", path)
-        data = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:
-        raise ValueError(f"{path}: not a complete PyTorch file ({_first_line(error)})") from None
-    entries = []
-    for keys in wanted:
-        alternatives = " or ".join(f"'{k}'" for k in keys)
-        if not isinstance(data, Mapping):
-            raise ValueError(f"{path}: expected a dict with key {alternatives}, got {type(data).__name__}")
-        key = next((k for k in keys if k in data), None)
-        if key is None:
-            raise ValueError(f"{path}: no key {alternatives} (keys: {', '.join(map(str, list(data)[:10]))})")
-        state = data[key]
-        if not isinstance(state, Mapping) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-            raise ValueError(f"{path}: '{key}' is not a state dict of tensors")
-        entries.append((key, {str(k): v.float() if v.is_floating_point() else v for k, v in state.items()}))
-    return entries
 
 
-def _first_line(error: BaseException) -> str:
-    text = str(error).strip()
-    return text.splitlines()[0][:200] if text else type(error).__name__
 
 
-def strip_prefix(state: Mapping[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
-    return {k[len(prefix):] if k.startswith(prefix) else k: v for k, v in state.items()}
 
 
 def _require(state: Mapping[str, torch.Tensor], key: str, file: str) -> torch.Tensor:
@@ -167,12 +122,6 @@ def infer_gpt_config(state: Mapping[str, torch.Tensor], heads: int | None = None
     )
 
 
-def load_strict(module: torch.nn.Module, state: Mapping[str, torch.Tensor], file: str) -> None:
-    try:
-        module.load_state_dict(dict(state), strict=True)
-    except RuntimeError as error:
-        detail = " ".join(str(error).split())  # one line: torch's message spans several
-        raise ValueError(f"{file}: weights do not fit the inferred model ({detail})") from error
 
 
 @dataclass
@@ -188,10 +137,10 @@ def load_release(vq_path: str | Path, gpt_path: str | Path, mean_path: str | Pat
     """Rebuild the released VQ-VAE and GPT as our modules (strict loads) plus the de-normalisation arrays."""
     vq_state = strip_prefix(load_checkpoint_dict(vq_path, "net", allow_pickle), "vqvae.")
     vq = MotionVQVAE(infer_vq_config(vq_state, str(vq_path)))
-    load_strict(vq, vq_state, str(vq_path))
+    load_strict(vq, vq_state, str(vq_path), "T2M-GPT")
     gpt_state = load_checkpoint_dict(gpt_path, "trans", allow_pickle)
     gpt = MotionGPT(infer_gpt_config(gpt_state, heads, str(gpt_path)))
-    load_strict(gpt, gpt_state, str(gpt_path))
+    load_strict(gpt, gpt_state, str(gpt_path), "T2M-GPT")
     if gpt.config.codebook_size != vq.config.nb_code:
         raise ValueError(f"{gpt_path}: GPT codebook_size {gpt.config.codebook_size} != VQ nb_code {vq.config.nb_code}")
     arrays = []

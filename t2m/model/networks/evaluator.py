@@ -10,18 +10,21 @@ Numbers from it are comparable between our own models, not with the papers' tabl
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from t2m.model.networks.config import ConfigDict
 from t2m.motion.constants import FRAMES_PER_TOKEN
 
 
 @dataclass
-class EvaluatorConfig:
+class EvaluatorConfig(ConfigDict):
+    label = "evaluator"
+
     feature_dim: int = 263      # 263 for SMPL-22 (HumanML3D), 251 for KIT-21
     text_dim: int = 384         # MiniLM sentence features
     text_encoder: str = "minilm"
@@ -34,8 +37,6 @@ class EvaluatorConfig:
     dropout: float = 0.1
     temperature: float = 0.1
 
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 class Block(nn.Module):

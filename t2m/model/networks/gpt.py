@@ -20,17 +20,20 @@ sampling and the ONNX step graph; no Python control flow on tensor values).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
-from typing import Any
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from t2m.model.networks.config import ConfigDict
+
 
 @dataclass
-class GPTConfig:
+class GPTConfig(ConfigDict):
     """Hyper-parameters of :class:`MotionGPT` (T2M-GPT's release: E=1024, 9+9 layers, 16 heads, Dt=512)."""
+
+    label = "GPT"
 
     codebook_size: int = 512
     embed: int = 384
@@ -76,16 +79,6 @@ class GPTConfig:
     def pad_id(self) -> int:
         return self.codebook_size + 1
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> GPTConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"unknown GPT config field(s): {', '.join(sorted(unknown))}")
-        return cls(**data)
 
 
 def sinusoid_table(length: int, dim: int) -> torch.Tensor:

@@ -13,21 +13,24 @@ de-normalisation happens outside (in the exported decoder graph).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
-from typing import Any, TypeAlias
+from dataclasses import dataclass
+from typing import TypeAlias
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from t2m.model.networks.config import ConfigDict
 from t2m.model.networks.quantizers import EMAResetQuantizer, PlainQuantizer, ResidualQuantizer
 
 QUANTIZERS = ("ema_reset", "plain", "residual")
 
 
 @dataclass
-class VQConfig:
+class VQConfig(ConfigDict):
     """Hyper-parameters of :class:`MotionVQVAE`. Defaults are sized for a 2-core CPU (T2M-GPT: 512/512/512)."""
+
+    label = "VQ"
 
     feat_dim: int = 263
     width: int = 256
@@ -63,16 +66,6 @@ class VQConfig:
     def frames_per_token(self) -> int:
         return 2**self.down_t
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> VQConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"unknown VQ config field(s): {', '.join(sorted(unknown))}")
-        return cls(**data)
 
 
 class ResBlock(nn.Module):

@@ -1,5 +1,6 @@
-"""Command-line options every masked-family trainer shares (data, run dir, schedule, bookkeeping), their checks, and
-the LoopSettings they make. Each trainer adds its own model and loss options between the two groups."""
+"""Command-line options the trainers on the shared loop share (data, run dir, schedule, text, bookkeeping), their
+checks, and the LoopSettings they make. Each trainer adds its own model and loss options between the groups. (The
+evaluator's trainer has its own short schedule: no warm-up or milestones.)"""
 from __future__ import annotations
 
 import argparse
@@ -32,7 +33,7 @@ def add_text_arguments(parser: argparse.ArgumentParser) -> None:
     """--text-encoder --clip-weights --text-cache (as the GPT trainer has them)."""
     parser.add_argument("--text-encoder", choices=("minilm", "clip"), default="minilm")
     parser.add_argument("--clip-weights", default=None,
-                        help="local open_clip ViT-B-32 weights (for --text-encoder clip)")
+                        help="OpenAI's CLIP ViT-B-32.pt (for --text-encoder clip)")
     parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
 
 

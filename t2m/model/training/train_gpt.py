@@ -118,19 +118,11 @@ def validate_gpt(model: MotionGPT, batches: list[dict[str, torch.Tensor]]) -> di
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset directory (HumanML3D layout)")
+    from t2m.model.training.run_options import add_bookkeeping_arguments, add_schedule_arguments, add_text_arguments
+
+    add_schedule_arguments(parser, steps=20_000, batch_size=64, weight_decay=0.01)
     parser.add_argument("--vq", required=True, help="run directory of the trained VQ-VAE")
-    parser.add_argument("--out", required=True, help="run directory for checkpoints and logs")
-    parser.add_argument("--steps", type=int, default=20_000)
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--lr", type=float, default=2e-4)
-    parser.add_argument("--weight-decay", type=float, default=0.01)
-    parser.add_argument("--warmup-steps", type=int, default=500)
-    parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
-    parser.add_argument("--lr-gamma", type=float, default=0.1)
-    parser.add_argument("--text-encoder", choices=("minilm", "clip"), default="minilm")
-    parser.add_argument("--clip-weights", default=None, help="OpenAI's CLIP ViT-B-32.pt (for --text-encoder clip)")
-    parser.add_argument("--text-cache", default=None, help="caption feature cache (default <out>/text_features.npz)")
+    add_text_arguments(parser)
     parser.add_argument("--embed", type=int, default=384)
     parser.add_argument("--layers", type=int, default=6, help="transformer blocks (split between trans_base/head)")
     parser.add_argument("--heads", type=int, default=6)
@@ -143,12 +135,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="largest relative noise added to the text feature (0 = off; see the module docstring)")
     parser.add_argument("--cond-drop", type=float, default=0.1, help="condition dropout probability")
     parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
-    parser.add_argument("--log-every", type=int, default=50)
-    parser.add_argument("--val-every", type=int, default=1000)
-    parser.add_argument("--save-every", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--resume", action="store_true", help="continue from <out>/resume.pt")
+    add_bookkeeping_arguments(parser, every=1000)
 
 
 def parse_corruption(text: str) -> str | float:

@@ -123,17 +123,11 @@ def _validate_vq(
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset directory (HumanML3D layout)")
-    parser.add_argument("--out", required=True, help="run directory for checkpoints and logs")
-    parser.add_argument("--steps", type=int, default=20_000)
-    parser.add_argument("--batch-size", type=int, default=64)
+    from t2m.model.training.run_options import add_bookkeeping_arguments, add_schedule_arguments
+
+    add_schedule_arguments(parser, steps=20_000, batch_size=64)
     parser.add_argument("--window", type=int, default=64,
                         help="frames per training window (a multiple of 2**down-t frames per code)")
-    parser.add_argument("--lr", type=float, default=2e-4)
-    parser.add_argument("--weight-decay", type=float, default=0.0)
-    parser.add_argument("--warmup-steps", type=int, default=500)
-    parser.add_argument("--lr-milestones", default="0.7", help="comma-separated fractions of --steps where LR x gamma")
-    parser.add_argument("--lr-gamma", type=float, default=0.1)
     parser.add_argument("--width", type=int, default=256)
     parser.add_argument("--code-dim", type=int, default=256)
     parser.add_argument("--nb-code", type=int, default=512)
@@ -151,12 +145,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--commit-weight", type=float, default=None,
                         help="weight of the quantiser loss (default 0.02 for ema_reset/residual, 1.0 for plain)")
     parser.add_argument("--balance-power", type=float, default=1.0, help=BALANCE_POWER_HELP)
-    parser.add_argument("--log-every", type=int, default=50)
-    parser.add_argument("--val-every", type=int, default=1000)
-    parser.add_argument("--save-every", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--resume", action="store_true", help="continue from <out>/resume.pt")
+    add_bookkeeping_arguments(parser, every=1000)
 
 
 def parse_milestones(text: str) -> tuple[float, ...]:
