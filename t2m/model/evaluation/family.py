@@ -20,7 +20,7 @@ class CodeFamily(Protocol):
     name: str                      # its model family's name (t2m.bundle.family)
     text_encoder: str              # the text features it is conditioned on ("minilm", "clip")
     max_tokens: int                # longest motion it generates, in tokens (4 frames each)
-    paths: dict[str, str]          # its runs, in report order (e.g. {"masked": ..., "residual": ...})
+    paths: dict[str, str]          # its runs by role, in report order
     labels: dict[str, str]         # how the report names each of its runs
     settings: dict[str, Any]       # decoding settings beyond temperature/top-k/guidance, for the report
     batch_by_length: bool          # batch rows of similar lengths together (every step runs at the batch's longest)
