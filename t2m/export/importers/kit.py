@@ -13,8 +13,8 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["check_tensors", "load_checkpoint_entries", "load_checkpoint_entry", "load_strict", "read_stat",
-           "require_tensor", "shape_text", "strip_prefix"]
+__all__ = ["check_tensors", "load_checked", "load_checkpoint_entries", "load_checkpoint_entry", "load_strict",
+           "read_stat", "require_tensor", "shape_text", "strip_prefix"]
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +101,17 @@ def check_tensors(state: Mapping[str, torch.Tensor], module: nn.Module, where: s
         raise ValueError(f"{where}: unexpected tensor '{extra[0]}' (not part of {release}'s released model)")
 
 
-def load_strict(module: nn.Module, state: Mapping[str, torch.Tensor], where: str, release: str) -> Any:
+def load_strict(module: nn.Module, state: Mapping[str, torch.Tensor], where: str) -> None:
+    """torch's strict load (the module's own load hooks drop what a release keeps and it does not use: T2M-GPT's
+    attention masks and unused position table), its error as one line."""
+    try:
+        module.load_state_dict(dict(state), strict=True)
+    except RuntimeError as error:
+        detail = " ".join(str(error).split())  # one line: torch's message spans several
+        raise ValueError(f"{where}: weights do not fit the inferred model ({detail})") from error
+
+
+def load_checked(module: nn.Module, state: Mapping[str, torch.Tensor], where: str, release: str) -> Any:
     """``module`` with every tensor of ``state`` checked (check_tensors), loaded, in eval mode."""
     check_tensors(state, module, where, release)
     module.load_state_dict(dict(state), strict=True)  # cannot fail: every key and shape was checked

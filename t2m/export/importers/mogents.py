@@ -26,7 +26,7 @@ from typing import Any
 import torch
 
 from t2m.export.families.masked import MaskedDecoding, MaskedExportChecks, TokenBranch, export_masked_bundle
-from t2m.export.importers.kit import load_strict, read_stat, require_tensor, shape_text
+from t2m.export.importers.kit import load_checked, read_stat, require_tensor, shape_text
 from t2m.export.importers.mogents_card import release_notes
 from t2m.export.importers.mogents_files import ImportedMogents, locate_release, read_states
 from t2m.export.importers.momask import (
@@ -92,7 +92,7 @@ def _fused_vq(path: Path, allow_pickle: bool) -> tuple[FusedVQVAE, str]:
                            nb_code=int(book2d.shape[0]), code_dim1d=int(book1d.shape[1]),
                            nb_code1d=int(book1d.shape[0]), depth=max(depth, 1),
                            dilation_growth=RELEASE_DILATION_GROWTH, residual_layers=layers)
-    return load_strict(FusedVQVAE(config), state, where, RELEASE), key
+    return load_checked(FusedVQVAE(config), state, where, RELEASE), key
 
 
 def _positions_2d(state: dict[str, torch.Tensor], where: str, rows: int, columns: int, latent: int) -> None:
@@ -120,7 +120,7 @@ def _ts_models(path_m: Path, path_r: Path, vq: FusedVQVAE, heads: int, states: d
                               **quirks)
         prefix = 1 if model_type is MaskedTransformer else 2
         _positions_2d(state, where, config.max_tokens + prefix, config.columns, config.latent)
-        models.append(load_strict(model_type(config), state, where, RELEASE))
+        models.append(load_checked(model_type(config), state, where, RELEASE))
     return models[0], models[1]
 
 
@@ -134,7 +134,7 @@ def _aux_models(path_m: Path, path_r: Path, vq: FusedVQVAE, heads: int, states: 
         where = f"{path} ['{key}']"
         config = token_config(encoder_sizes(state, where, heads), c.nb_code1d, c.residual_layers, c.code_dim1d)
         read_positions(state, where, config.latent, config.max_tokens)
-        models.append(load_strict(model_type(config), state, where, RELEASE))
+        models.append(load_checked(model_type(config), state, where, RELEASE))
     return models[0], models[1]
 
 

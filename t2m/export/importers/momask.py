@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 import torch
 
 from t2m.export.families.masked import MaskedDecoding, MaskedExportChecks, export_masked_bundle
-from t2m.export.importers.kit import load_strict, read_stat, require_tensor, shape_text
+from t2m.export.importers.kit import load_checked, read_stat, require_tensor, shape_text
 from t2m.export.importers.momask_card import release_notes
 from t2m.export.importers.momask_files import (
     ImportedMomask,
@@ -99,7 +99,7 @@ def _vq(path: Path, allow_pickle: bool) -> tuple[MotionVQVAE, str]:
     config = infer_vq_config(state, where)
     if config.residual_layers < 2:
         raise ValueError(f"{where}: {config.residual_layers} quantiser layer; MoMask's RVQ-VAE has several")
-    return load_strict(MotionVQVAE(config), state, where, "MoMask"), key
+    return load_checked(MotionVQVAE(config), state, where, "MoMask"), key
 
 
 def encoder_sizes(state: Mapping[str, torch.Tensor], where: str, heads: int) -> dict[str, int]:
@@ -145,7 +145,7 @@ def _masked(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tupl
     where = f"{path} ['{key}']"
     config = _token_config(vq, encoder_sizes(state, where, heads))
     read_positions(state, where, config.latent, config.max_tokens)
-    return load_strict(MaskedTransformer(config), state, where, "MoMask"), key
+    return load_checked(MaskedTransformer(config), state, where, "MoMask"), key
 
 
 def _residual(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tuple[ResidualTransformer, str]:
@@ -156,7 +156,7 @@ def _residual(path: Path, vq: MotionVQVAE, heads: int, allow_pickle: bool) -> tu
                          f"{vq.config.code_dim}] (the release's residual transformer shares its tables)")
     config = _token_config(vq, encoder_sizes(state, where, heads))
     read_positions(state, where, config.latent, config.max_tokens)
-    return load_strict(ResidualTransformer(config), state, where, "MoMask"), key
+    return load_checked(ResidualTransformer(config), state, where, "MoMask"), key
 
 
 def load_length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEstimator, str]:
@@ -170,7 +170,7 @@ def load_length(path: Path, text_dim: int, allow_pickle: bool) -> tuple[LengthEs
                          f"[hidden >= 4, {text_dim}]")
     config = LengthEstimatorConfig(text_dim=text_dim, hidden=hidden, max_tokens=RELEASE_MAX_TOKENS,
                                    dropout=RELEASE_DROPOUT)
-    return load_strict(LengthEstimator(config), state, where, "MoMask"), key
+    return load_checked(LengthEstimator(config), state, where, "MoMask"), key
 
 
 def load_momask(files: MomaskFiles, heads: int = RELEASE_HEADS, allow_pickle: bool = False) -> ImportedMomask:

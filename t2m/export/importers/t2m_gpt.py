@@ -137,10 +137,10 @@ def load_release(vq_path: str | Path, gpt_path: str | Path, mean_path: str | Pat
     """Rebuild the released VQ-VAE and GPT as our modules (strict loads) plus the de-normalisation arrays."""
     vq_state = strip_prefix(load_checkpoint_dict(vq_path, "net", allow_pickle), "vqvae.")
     vq = MotionVQVAE(infer_vq_config(vq_state, str(vq_path)))
-    load_strict(vq, vq_state, str(vq_path), "T2M-GPT")
+    load_strict(vq, vq_state, str(vq_path))
     gpt_state = load_checkpoint_dict(gpt_path, "trans", allow_pickle)
     gpt = MotionGPT(infer_gpt_config(gpt_state, heads, str(gpt_path)))
-    load_strict(gpt, gpt_state, str(gpt_path), "T2M-GPT")
+    load_strict(gpt, gpt_state, str(gpt_path))
     if gpt.config.codebook_size != vq.config.nb_code:
         raise ValueError(f"{gpt_path}: GPT codebook_size {gpt.config.codebook_size} != VQ nb_code {vq.config.nb_code}")
     arrays = []
