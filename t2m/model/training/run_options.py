@@ -73,9 +73,19 @@ def check_arguments(args: argparse.Namespace, positive: tuple[str, ...], fractio
     return out
 
 
+def parse_milestones(text: str) -> tuple[float, ...]:
+    """--lr-milestones: comma-separated fractions of --steps in (0, 1]."""
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise ValueError(f"--lr-milestones must be comma-separated fractions, got {text!r}") from None
+    if any(not 0.0 < v <= 1.0 for v in values):
+        raise ValueError(f"--lr-milestones must be fractions in (0, 1], got {text!r}")
+    return values
+
+
 def loop_settings(args: argparse.Namespace, grad_clip: float | None) -> LoopSettings:
     from t2m.model.training.loop import LoopSettings
-    from t2m.model.training.train_vq import parse_milestones
 
     return LoopSettings(
         steps=args.steps, lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.warmup_steps,

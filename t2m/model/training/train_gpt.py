@@ -170,7 +170,7 @@ def main(args: argparse.Namespace) -> int:
     from t2m.model.networks.text_encoders import cache_text_features, get_text_encoder
     from t2m.model.training.checkpoint import load_model
     from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
-    from t2m.model.training.train_vq import parse_milestones
+    from t2m.model.training.run_options import parse_milestones
 
     corruption = parse_corruption(args.corruption)
     for name in ("steps", "batch_size", "layers", "heads", "max_tokens"):

@@ -148,16 +148,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bookkeeping_arguments(parser, every=1000)
 
 
-def parse_milestones(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise ValueError(f"--lr-milestones must be comma-separated fractions, got {text!r}") from None
-    if any(not 0.0 < v <= 1.0 for v in values):
-        raise ValueError(f"--lr-milestones must be fractions in (0, 1], got {text!r}")
-    return values
-
-
 def window_loader(train_set: Any, batch_size: int, balance_power: float, out: Path) -> Any:
     """Shuffled windows, or (balance_power < 1) windows drawn with action-balanced weights.
 
@@ -182,6 +172,7 @@ def main(args: argparse.Namespace) -> int:
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
     from t2m.model.training.bone_lengths import BoneLengths
     from t2m.model.training.loop import LoopSettings, infinite, run_training, set_seed, set_threads
+    from t2m.model.training.run_options import parse_milestones
     from t2m.motion.skeleton import get_skeleton
 
     if args.down_t < 1:
