@@ -1,85 +1,46 @@
-"""Shared fixtures: a handful of real Bandai-Namco clips extracted once per test session.
+"""Shared fixtures: the committed real clips (tests/fixtures), and the shared-data marker's hooks.
 
-The shared folder is $T2M_SHARED, else `<repo>/../shared`. Reading one member of a .tar.xz means decompressing
-everything before it, so the fixture extracts only the members below, in one pass that stops as soon as all of them
-were seen (they sit in the first ~8% of the archive: about a second). Tests that need them skip, naming the path,
-when the archive is absent.
+The Bandai-Namco clips in tests/fixtures/bandai-namco/dataset are laid out like the unpacked archive
+(`Bandai-Namco-Research-Motiondataset-N/data/*.bvh`); dataset-1's clips come with their JSON labels and cfg/ label
+files, so the dataset builder runs on them, dataset-2's are BVH only (tests/fixtures/README.md). Tests that need the
+whole shared folder are marked `shared_data` (tests/shared_data.py).
 """
 from __future__ import annotations
 
-import os
-import tarfile
-import time
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-
-# dataset-1 clips with their labels (so the dataset builder can run on them) + a few dataset-2 BVH files
-BANDAI_TEST_CLIPS = (
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk_normal_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk-back_active_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk-left_normal_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_bow_normal_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_bye_normal_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_run_happy_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk-right_tired_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_kick_normal_001",
-    "Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk-back_normal_001",
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_walk_active_024",
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_walk-turn-left_active_041",
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_walk-turn-right_active_039",
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_walk-turn-right_masculine_007",  # mislabelled: turns left
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_wave-left-hand_youthful_007",
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_raise-up-right-hand_active_033",
-    "Bandai-Namco-Research-Motiondataset-2/data/dataset-2_wave-both-hands_active_029",
+from tests.shared_data import (  # noqa: F401  (the shared_data marker's hooks, registered by being here)
+    BANDAI_FIXTURE,
+    pytest_runtest_makereport,
+    pytest_runtest_setup,
 )
-# dataset-2's JSON sidecars (and label files) sit far later in the archive than its BVH files: BVH only for those.
-BANDAI_TEST_FILES = tuple(f"{clip}{ext}" for clip in BANDAI_TEST_CLIPS
-                          for ext in ((".bvh", ".json") if "dataset-1_" in clip else (".bvh",))) + (
-    "Bandai-Namco-Research-Motiondataset-1/cfg/content_label.txt",
-    "Bandai-Namco-Research-Motiondataset-1/cfg/style_label.txt",
-)
-
-
-def shared_root() -> Path:
-    return Path(os.environ.get("T2M_SHARED", REPO / ".." / "shared")).resolve()
-
-
-def bandai_archive() -> Path:
-    return shared_root() / "data" / "bandai-namco" / "bandai-namco-motion.tar.xz"
 
 
 @pytest.fixture(scope="session")
-def bandai_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Directory laid out like the unpacked archive (`dataset/Bandai-Namco-Research-Motiondataset-N/...`), holding
-    only BANDAI_TEST_FILES. Its `extract_seconds.txt` records how long the extraction took."""
-    archive = bandai_archive()
-    if not archive.is_file():
-        pytest.skip(f"Bandai-Namco archive not found at {archive} (set T2M_SHARED to the shared folder)")
-    target = tmp_path_factory.mktemp("bandai")
-    wanted = {f"dataset/{name}" for name in BANDAI_TEST_FILES}
-    started = time.perf_counter()
-    with tarfile.open(archive, "r:xz") as tar:
-        for member in tar:
-            if member.name in wanted:
-                tar.extract(member, target, filter="data")
-                wanted.discard(member.name)
-                if not wanted:
-                    break
-    if wanted:
-        pytest.fail(f"{archive} lacks test members: {sorted(wanted)[:3]}")
-    (target / "extract_seconds.txt").write_text(f"{time.perf_counter() - started:.2f}\n")
-    return target / "dataset"
+def bandai_dir() -> Path:
+    """The fixture clips' `dataset` directory (read-only: build into tmp_path)."""
+    return BANDAI_FIXTURE
 
 
 @pytest.fixture(scope="session")
 def bandai_clip(bandai_dir: Path):
-    """clip stem -> path of its .bvh among the extracted test clips."""
+    """clip stem -> path of its .bvh among the fixture clips."""
     def path(stem: str) -> Path:
         dataset = stem.split("_")[0].removeprefix("dataset-")
         result = bandai_dir / f"Bandai-Namco-Research-Motiondataset-{dataset}" / "data" / f"{stem}.bvh"
-        assert result.is_file(), f"{stem} is not among conftest.BANDAI_TEST_CLIPS"
+        assert result.is_file(), f"{stem} is not among the fixture clips ({bandai_dir})"
         return result
     return path
+
+
+@pytest.fixture(scope="session")
+def bandai_build(bandai_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """What `t2m data build --limit 8` makes of the fixture clips (1 worker, mirrored): the HumanML3D layout with
+    captions, for the tests that need a built dataset."""
+    from t2m.model.data.dataset_builder import BuildOptions, build_dataset
+
+    root = tmp_path_factory.mktemp("bandai-build")
+    build_dataset(bandai_dir, root, BuildOptions(workers=1, limit=8, progress=False))
+    return root

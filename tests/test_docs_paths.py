@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import ast
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -36,6 +35,8 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+
+from tests.shared_data import shared_dir
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -67,7 +68,9 @@ def folder_names(repo: Path = REPO) -> frozenset[str]:
     names: set[str] = set()
     for root in ROOT_FOLDERS:
         for path in (repo / root).rglob("*"):
-            if path.is_dir() and not any(part.startswith((".", "__")) for part in path.relative_to(repo).parts[1:]):
+            parts = path.relative_to(repo).parts
+            if path.is_dir() and not any(part.startswith((".", "__")) for part in parts[1:]) and \
+                    parts[:2] != ("tests", "fixtures"):    # data laid out as its source has it, not our code
                 names.add(path.name)
     return frozenset(names - ignored_roots(repo))
 
@@ -203,7 +206,7 @@ def problems_in_text(text: str, page: Path, repo: Path = REPO) -> list[str]:
             continue
         problems.append(f"path {token}: no such file (from the repository root or {page.parent.name}/)")
 
-    shared = Path(os.environ.get("T2M_SHARED", repo / ".." / "shared"))
+    shared = shared_dir() if repo == REPO else repo / ".." / "shared"
     if shared.is_dir():
         for token in SHARED.findall(text):
             if not (shared / token).exists():

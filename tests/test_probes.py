@@ -8,7 +8,6 @@
 """
 from __future__ import annotations
 
-import glob
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +17,10 @@ from t2m.model.evaluation import probes
 from t2m.motion.bvh import read_bvh
 from t2m.motion.retarget import BANDAI_NAMCO, bvh_to_smpl22
 from t2m.motion.transforms import mirror_joints
+from tests.shared_data import HUMANML3D_SAMPLE
 
 REPO = Path(__file__).resolve().parents[1]
-HUMANML3D_JOINTS = REPO / ".." / "shared" / "data" / "humanml3d-sample" / "new_joints_012314.npy"
+HUMANML3D_JOINTS = HUMANML3D_SAMPLE / "new_joints_012314.npy"
 PROBE_FRAMES = 60          # the runner's 3 s at 20 fps
 
 
@@ -76,8 +76,6 @@ def test_walk_backward_fails_on_forward_and_standing(clip, stem):
 
 def test_walk_back_on_humanml3d_sample():
     """HumanML3D 012314 walks backwards (while turning right) in frames 60-120, after a turning move to its left."""
-    if not HUMANML3D_JOINTS.is_file():
-        pytest.skip(f"HumanML3D sample not found at {HUMANML3D_JOINTS}")
     joints = np.load(HUMANML3D_JOINTS)
     backwards = joints[60:120]
     assert probes.probe_walk_backward(backwards).passed
@@ -181,11 +179,11 @@ def test_bad_input_names_the_field():
         probes.probe_by_name("fly")
 
 
-def test_probe_sentences_are_not_training_captions():
-    """The probes ask in words the model was not trained on: no phrasing is (part of) a built caption."""
-    files = glob.glob(str(REPO / "data" / "bandai" / "texts" / "*.txt"))
-    if not files:
-        pytest.skip("no built captions at data/bandai/texts (t2m data build)")
+def test_probe_sentences_are_not_training_captions(bandai_build):
+    """The probes ask in words the model was not trained on: no phrasing is (part of) a caption that `t2m data build`
+    writes (here for the fixture clips, mirrored; the next test covers every caption the templates can make)."""
+    files = sorted((bandai_build / "texts").glob("*.txt"))
+    assert len(files) >= 16, files
     captions = set()
     for name in files:
         with open(name, encoding="utf-8") as handle:

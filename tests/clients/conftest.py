@@ -4,25 +4,17 @@ Install the clients with scripts/install_clients.sh; each test skips with the re
 """
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from tests.headings import full_turn, yaw
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.shared_data import HUMANML3D_SAMPLE
 
 
 @pytest.fixture(scope="session")
 def sample_joints() -> np.ndarray:
-    """[170, 22, 3] joints of HumanML3D clip 012314 (metres)."""
-    shared = Path(os.environ.get("T2M_SHARED", REPO / ".." / "shared")).resolve()
-    path = shared / "data" / "humanml3d-sample" / "new_joints_012314.npy"
-    if not path.is_file():
-        pytest.skip(f"HumanML3D sample not found at {path} (set T2M_SHARED to the shared folder)")
-    return np.load(path).astype(np.float64)
+    """[170, 22, 3] joints of HumanML3D clip 012314 (metres), from tests/fixtures."""
+    return np.load(HUMANML3D_SAMPLE / "new_joints_012314.npy").astype(np.float64)
 
 
 @pytest.fixture(scope="session")

@@ -1,17 +1,15 @@
 """A tiny dataset directory in the contracts' HumanML3D layout, for the model tests.
 
-The motion is real: crops of HumanML3D's sample clip 012314 (shared/data/humanml3d-sample) with HumanML3D's own
-Mean/Std; the captions are made up. Without the shared folder, smooth synthetic curves stand in.
+The motion is real: crops of HumanML3D's sample clip 012314 (committed in tests/fixtures/humanml3d-sample) with
+HumanML3D's own Mean/Std; the captions are made up. There is no synthetic stand-in: the sample is always there.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
-SHARED = Path(os.environ.get("T2M_SHARED", Path(__file__).resolve().parents[2] / ".." / "shared"))
-SAMPLE = SHARED / "data" / "humanml3d-sample"
+from tests.shared_data import HUMANML3D_SAMPLE as SAMPLE
 
 CAPTIONS = (
     "a person walks forward",
@@ -22,14 +20,9 @@ CAPTIONS = (
 
 
 def _source_motion() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features [T, 263], mean, std)"""
-    if (SAMPLE / "new_joint_vecs_012314.npy").is_file():
-        features = np.load(SAMPLE / "new_joint_vecs_012314.npy").astype(np.float32)
-        return features, np.load(SAMPLE / "Mean.npy").astype(np.float32), np.load(SAMPLE / "Std.npy").astype(np.float32)
-    t = np.linspace(0, 6, 170, dtype=np.float32)[:, None]
-    phase = np.linspace(0, 3, 263, dtype=np.float32)[None, :]
-    features = np.sin(t * 2 + phase) + 0.1 * np.cos(3 * t * phase)
-    return features.astype(np.float32), features.mean(0), features.std(0) + 1e-3
+    """(features [170, 263], mean, std) of the real HumanML3D sample."""
+    features = np.load(SAMPLE / "new_joint_vecs_012314.npy").astype(np.float32)
+    return features, np.load(SAMPLE / "Mean.npy").astype(np.float32), np.load(SAMPLE / "Std.npy").astype(np.float32)
 
 
 def make_dataset(root: Path, train_clips: int = 8, val_clips: int = 3) -> Path:

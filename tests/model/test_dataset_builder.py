@@ -25,13 +25,11 @@ from t2m.motion.transforms import mirror_joints
 
 
 @pytest.fixture(scope="module")
-def builds(bandai_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
-    """The same 8-clip build twice: with 2 workers and with 1."""
+def builds(bandai_dir: Path, bandai_build: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
+    """The same 8-clip build twice: with 2 workers here, and with 1 (conftest's bandai_build)."""
     first = tmp_path_factory.mktemp("build2")
-    second = tmp_path_factory.mktemp("build1")
     summary = build_dataset(bandai_dir, first, BuildOptions(workers=2, limit=8, progress=False))
-    build_dataset(bandai_dir, second, BuildOptions(workers=1, limit=8, progress=False))
-    return first, second, summary
+    return first, bandai_build, summary
 
 
 def _ids(root: Path, split: str) -> list[str]:

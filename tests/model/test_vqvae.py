@@ -90,7 +90,7 @@ def test_bad_inputs_name_the_problem():
 
 
 def fixed_windows() -> torch.Tensor:
-    """Four normalised 64-frame windows of real motion (HumanML3D sample; synthetic curves without it)."""
+    """Four normalised 64-frame windows of real motion (the HumanML3D sample in tests/fixtures)."""
 
     from synthetic_motion_data import _source_motion
 

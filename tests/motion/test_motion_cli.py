@@ -78,13 +78,13 @@ def test_no_traceback_from_the_real_command(tmp_path):
 
 
 def test_from_bvh_on_a_real_bandai_namco_clip(tmp_path, capsys, bandai_clip):
-    clips = [bandai_clip("dataset-1_walk_normal_001")]        # extracted from the shared archive (tests/conftest.py)
+    clip = bandai_clip("dataset-1_walk_normal_001")
     out = tmp_path / "walk.npy"
-    code, _, err = run(capsys, "motion", "from-bvh", str(clips[0]), "--map", "bandai-namco", "--fps", "20",
+    code, _, err = run(capsys, "motion", "from-bvh", str(clip), "--map", "bandai-namco", "--fps", "20",
                        "-o", str(out))
     assert code == 0, err
     joints = np.load(out)
-    frames_line = next(line for line in clips[0].read_text().splitlines() if line.startswith("Frames:"))
+    frames_line = next(line for line in clip.read_text().splitlines() if line.startswith("Frames:"))
     frames_30fps = int(frames_line.split()[1])
     assert joints.shape == ((frames_30fps - 1) * 2 // 3 + 1, 22, 3)
     assert abs(joints[..., 1].min()) < 1e-6 and np.abs(joints[0, 0, [0, 2]]).max() < 1e-6
