@@ -7,14 +7,15 @@ flags, its training kinds, its evaluation loader and its benchmark line. The res
 
 This module is the bundle contract's part of the seam (json + stdlib only). The hooks that need onnxruntime or torch
 (`serve`, `export`, `load_eval_models`) import their code inside the method, so the service never imports torch by
-looking a family up. Built-in families are imported by module name on the first lookup; plug-in packages declare
-theirs under the entry-point group `t2m.families` (each entry point names a `ModelFamily` instance), and a test or
-an application may call `register_family` directly.
+looking a family up. Built-in families are the modules of t2m/families/, imported on the first lookup; plug-in
+packages declare theirs under the entry-point group `t2m.families` (each entry point names a `ModelFamily`
+instance), and a test or an application may call `register_family` directly.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ from typing import Any, ClassVar
 from t2m.bundle.errors import BundleError
 
 __all__ = [
-    "BUILTIN_FAMILY_MODULES",
+    "BUILTIN_FAMILY_PACKAGE",
     "ENTRY_POINT_GROUP",
     "Capabilities",
     "FieldRule",
@@ -39,8 +40,8 @@ __all__ = [
 FieldRule = tuple[Callable[[Any], bool], str]
 """(check, what the value must be) for one manifest field; the message reads "field 'x' must be <what>"."""
 
-# the families t2m ships: each module holds one ModelFamily instance named FAMILY
-BUILTIN_FAMILY_MODULES = ("t2m.families.gpt", "t2m.families.masked", "t2m.families.hifigpt")
+# the families t2m ships: every module of this package holds one ModelFamily instance named FAMILY
+BUILTIN_FAMILY_PACKAGE = "t2m.families"
 ENTRY_POINT_GROUP = "t2m.families"
 
 
@@ -174,7 +175,9 @@ def _discover() -> None:
     with _lock:
         if _discovered:
             return
-        found = [importlib.import_module(module).FAMILY for module in BUILTIN_FAMILY_MODULES]
+        package = importlib.import_module(BUILTIN_FAMILY_PACKAGE)
+        modules = sorted(info.name for info in pkgutil.iter_modules(package.__path__))
+        found = [importlib.import_module(f"{BUILTIN_FAMILY_PACKAGE}.{name}").FAMILY for name in modules]
         found += [point.load() for point in entry_points(group=ENTRY_POINT_GROUP)]
         for family in found:
             _registry.setdefault(family.name, family)
@@ -182,7 +185,7 @@ def _discover() -> None:
 
 
 def iter_families() -> Iterator[ModelFamily]:
-    """The registered families, built-in ones first."""
+    """The registered families: the built-in ones (by module name), then plug-ins, then registered ones."""
     _discover()
     return iter(list(_registry.values()))
 
