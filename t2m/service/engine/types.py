@@ -24,6 +24,7 @@ __all__ = [
     "RequestLimitError",
     "SegmentRequest",
     "SegmentSpan",
+    "frames_for_duration",
     "tokens_for_duration",
 ]
 
@@ -34,6 +35,13 @@ def tokens_for_duration(duration: float, fps: int = FPS, frames_per_token: int =
     Python's round (half to even) is the documented formula: frames = round(duration * 20 / 4) * 4.
     """
     return max(1, round(duration * fps / frames_per_token))
+
+
+def frames_for_duration(duration: float, fps: int = FPS) -> int:
+    """Frames of a segment of `duration` seconds in the answer: round(duration * fps), at least 1, whatever the
+    model's frames_per_token (the engine fits the decoded frames to it: engine/timeline.py). Python's round (half to
+    even): 0.525 s -> 10 frames."""
+    return max(1, round(duration * fps))
 
 
 @dataclass(frozen=True)
