@@ -24,7 +24,7 @@ from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
 from t2m.service.engine.decoder import Decoder
-from t2m.service.engine.family_codes import FamilyCodes
+from t2m.service.engine.family_codes import FamilyCodes, ends_segments
 from t2m.service.engine.reach import DecoderReach, probe_reach
 from t2m.service.engine.requests import segment_steps
 from t2m.service.engine.streaming import FrameStreamer
@@ -93,7 +93,8 @@ class OnnxEngine:
                         if key in raw}, "unknown_text": self._unknown_text_details(),
                      "streaming": self._streaming_details(),
                      "family": manifest.family,
-                     **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})})
+                     **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
+            ends_segments=ends_segments(self.codes))
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
