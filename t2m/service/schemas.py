@@ -32,9 +32,11 @@ __all__ = [
     "ModelInfo",
     "MotionResponse",
     "OutputFormat",
+    "RequestLimits",
     "Segment",
     "SegmentSpanOut",
     "model_limit_errors",
+    "request_limits",
     "to_generation_request",
     "unknown_model_error",
 ]
@@ -79,8 +81,9 @@ class Segment(_Strict):
         examples=["a person walks forward"])
     duration: float | None = Field(
         None, ge=MIN_DURATION_S, le=MAX_DURATION_S,
-        description=f"Seconds ({MIN_DURATION_S}-{MAX_DURATION_S}); null lets the model end the segment itself. "
-                    "Frames = round(duration * 20 / 4) * 4.", examples=[3.0])
+        description=f"Seconds ({MIN_DURATION_S}-{MAX_DURATION_S}); null lets the model end the segment itself "
+                    "(GET /health: `limits.null_duration`). Frames = round(duration * fps), fps = 20.",
+        examples=[3.0])
 
 
 class GenerateRequest(_Strict):
@@ -89,7 +92,7 @@ class GenerateRequest(_Strict):
     segments: list[Segment] = Field(
         min_length=1, max_length=MAX_SEGMENTS,
         description=f"1-{MAX_SEGMENTS} segments; total at most {MAX_TOTAL_S:g} s, a null duration counting as the "
-                    "model's longest segment (max_tokens * 4 / 20 s, 10 s for the default model).")
+                    "model's longest segment (GET /health: `max_segment_seconds`, 10 s for the embedded models).")
     format: OutputFormat = Field("json", description="json (joints), bvh (text) or glb (glTF binary).")
     seed: Seed | None = Field(None,
                              description="Same seed + same request = same motion; null picks one and returns it.")
@@ -154,13 +157,39 @@ class MotionResponse(BaseModel):
     warnings: list[str] = Field(default_factory=list)
 
 
+class RequestLimits(BaseModel):
+    """What a request to one model may ask (each violation is a 422 naming the field): what a client needs to plan
+    one without trial and error."""
+
+    max_segments: int = Field(description="Segments per request at most.")
+    max_text_chars: int = Field(description="Characters of a segment's text at most, after trimming.")
+    min_duration_s: float = Field(description="A segment's shortest duration.")
+    max_duration_s: float = Field(description="A segment's longest duration for this model: the API's cap or the "
+                                              "model's longest segment, whichever is shorter.")
+    null_duration: bool = Field(description="Whether a segment may leave `duration` null and let the model end it.")
+    null_duration_ends_by: str | None = Field(description="How the model ends such a segment (its End token, stop "
+                                                          "head or length estimator); null when it cannot.")
+    max_total_s: float = Field(description="All durations together at most; a null duration counts as "
+                                           "`max_segment_seconds`.")
+    max_guidance: float
+    max_temperature: float = Field(description="Temperatures are in (0, max_temperature].")
+    max_top_k: int = Field(description="`top_k` is 1..the codebook size.")
+    max_seed: int
+    max_body_bytes: int = Field(description="Larger request bodies answer 413 (T2M_MAX_BODY_BYTES).")
+    request_timeout_s: float = Field(description="A generation taking longer answers 504 (T2M_REQUEST_TIMEOUT_S).")
+
+
 class ModelDetails(ModelInfo):
-    fps: int
-    max_tokens: int
+    fps: int = Field(description="Frames per second of the answer.")
+    frames_per_token: int = Field(description="Frames the model decodes per code step; a segment's frames in the "
+                                              "answer are round(duration * fps) all the same.")
+    max_tokens: int = Field(description="Code steps per segment at most.")
+    max_segment_seconds: float = Field(description="The longest segment: max_tokens * frames_per_token / fps.")
     codebook_size: int
     default_guidance: float
     unconditional_branch: bool
     length_conditioning: bool
+    limits: RequestLimits
     extra: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -177,6 +206,16 @@ class HealthResponse(BaseModel):
 
 class ErrorResponse(BaseModel):
     detail: str
+
+
+def request_limits(limits: ModelLimits, max_body_bytes: int, request_timeout_s: float) -> RequestLimits:
+    """The limits of a request to the model of `limits` (the fields' own and the model's), as /health shows them."""
+    return RequestLimits(
+        max_segments=MAX_SEGMENTS, max_text_chars=MAX_TEXT_CHARS, min_duration_s=MIN_DURATION_S,
+        max_duration_s=min(MAX_DURATION_S, limits.max_segment_seconds), null_duration=limits.null_duration,
+        null_duration_ends_by=limits.ends_segments, max_total_s=MAX_TOTAL_S, max_guidance=MAX_GUIDANCE,
+        max_temperature=MAX_TEMPERATURE, max_top_k=limits.codebook_size, max_seed=MAX_SEED,
+        max_body_bytes=max_body_bytes, request_timeout_s=request_timeout_s)
 
 
 def _error(loc: tuple[Any, ...], message: str, value: Any) -> dict[str, Any]:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.service.engine.types import GenerationRequest, SegmentRequest, tokens_for_duration
+from t2m.service.engine.types import GenerationRequest, SegmentRequest, frames_for_duration
 from tests.service.conftest import DEFAULT_MODEL, wait_ready
 from tests.service.test_streaming_http import ROUNDING, check_stream_equals_answer, messages
 
@@ -20,8 +20,8 @@ THREE_SENTENCES: Segments = [("a person walks forward", 2.0), ("a person waves w
 
 
 def check_spans(answer: dict, segments: Segments) -> None:
-    """Contiguous spans from frame 0 to the last frame, one per sentence; a fixed duration's span is its whole
-    codes of 4 frames, a free one at least one code."""
+    """Contiguous spans from frame 0 to the last frame, one per sentence; a fixed duration's span is exactly
+    round(duration * 20) frames, a free one whole codes of 4 frames, at least one."""
     frames = np.asarray(answer["frames"])
     spans = [(s["start_frame"], s["end_frame"]) for s in answer["segments"]]
     assert [s["text"] for s in answer["segments"]] == [text for text, _ in segments]
@@ -31,7 +31,7 @@ def check_spans(answer: dict, segments: Segments) -> None:
         if duration is None:
             assert end - start >= 4 and (end - start) % 4 == 0
         else:
-            assert end - start == tokens_for_duration(duration) * 4
+            assert end - start == frames_for_duration(duration)
     assert frames.shape[1:] == (22, 3) and np.isfinite(frames).all()
 
 

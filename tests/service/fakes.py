@@ -14,13 +14,14 @@ from t2m.service.engine.types import (
     ModelLimits,
     Motion,
     SegmentSpan,
+    frames_for_duration,
     tokens_for_duration,
 )
 
 FAKE_LIMITS = ModelLimits(
     name="fake", version="0.0.1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=64,
     default_guidance=2.5, unconditional_branch=True, length_conditioning=True, skeleton="smpl22",
-    joint_names=tuple(SMPL22.joint_names), parents=tuple(SMPL22.parents))
+    joint_names=tuple(SMPL22.joint_names), parents=tuple(SMPL22.parents), ends_segments="its End token")
 
 
 class FakeEngine:
@@ -48,16 +49,17 @@ class FakeEngine:
         if request.cancelled:
             return GenerationCancelled("cancelled")
         rng = np.random.default_rng(request.seed)
-        spans, start = [], 0
+        spans, start, tokens = [], 0, 0
         for segment in request.segments:
-            tokens = (tokens_for_duration(segment.duration) if segment.duration is not None
-                      else int(rng.integers(1, self.limits.max_tokens + 1)))
-            spans.append(SegmentSpan(segment.text, start, start + 4 * tokens))
-            start += 4 * tokens
+            steps = (tokens_for_duration(segment.duration) if segment.duration is not None
+                     else int(rng.integers(1, self.limits.max_tokens + 1)))
+            frames = 4 * steps if segment.duration is None else frames_for_duration(segment.duration)
+            spans.append(SegmentSpan(segment.text, start, start + frames))
+            start, tokens = start + frames, tokens + steps
         joints = np.asarray(SMPL22.offsets, dtype=np.float32)[None].cumsum(axis=1).repeat(start, 0)
         joints = joints + rng.normal(0, 0.01, joints.shape).astype(np.float32)
         warnings = [] if request.guidance == 1.0 or self.limits.unconditional_branch else ["no unconditional branch"]
-        return Motion(joints=joints, fps=20, segments=spans, seed=request.seed, tokens=start // 4, warnings=warnings)
+        return Motion(joints=joints, fps=20, segments=spans, seed=request.seed, tokens=tokens, warnings=warnings)
 
 
 class StreamingFakeEngine(FakeEngine):

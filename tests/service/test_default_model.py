@@ -28,7 +28,9 @@ def test_default_model_makes_a_plausible_walk(default_engine):
         segments=[SegmentRequest("a person walks forward", 3.0), SegmentRequest("a person waves", 2.0)], seed=0,
         guidance=default_engine.limits.default_guidance if default_engine.limits.unconditional_branch else 1.0))
     joints = motion.joints
-    assert joints.shape == (104, 22, 3) and np.isfinite(joints).all()   # 3 s -> 8 steps of 8 frames, 2 s -> 5
+    # 3 s -> 8 steps of 8 frames fitted to 60, 2 s -> 5 steps, 40 frames: exactly 20 frames a second
+    assert joints.shape == (100, 22, 3) and np.isfinite(joints).all()
+    assert [(s.start_frame, s.end_frame) for s in motion.segments] == [(0, 60), (60, 100)]
     head, pelvis = joints[:, 15, 1], joints[:, 0, 1]
     assert (head > pelvis + 0.3).all() and 1.2 < head.mean() < 2.0
     feet = joints[:, list(SMPL22.foot_joints), 1]

@@ -14,10 +14,11 @@ def _request(seed=1, guidance=3.0, durations=(3.0, None, 0.5), **options) -> Gen
 
 
 def test_motion_shape_and_segment_frames(onnx_engine):
+    """0.5 s: round(0.5 * 20 / 4) = 2 steps (half to even), 8 decoded frames, fitted to the exact 10."""
     motion = onnx_engine.generate(_request(durations=(3.0, 2.0, 0.5)))
-    assert motion.joints.shape == (60 + 40 + 8, 22, 3) and motion.joints.dtype == np.float32
+    assert motion.joints.shape == (60 + 40 + 10, 22, 3) and motion.joints.dtype == np.float32
     assert np.isfinite(motion.joints).all()
-    assert [(s.start_frame, s.end_frame) for s in motion.segments] == [(0, 60), (60, 100), (100, 108)]
+    assert [(s.start_frame, s.end_frame) for s in motion.segments] == [(0, 60), (60, 100), (100, 110)]
     assert motion.tokens == 27 and motion.fps == 20 and motion.seed == 1 and motion.warnings == []
 
 

@@ -6,6 +6,15 @@ after it (sha256 in CHANGELOG.md). The default T2M-HiFiGPT model's (tests/data/d
 recorded when it became the default; the masked model's (tests/data/masked_model_outputs.npz) before the
 family seam (issue 24) was built. Across CPUs onnxruntime may differ in the last float bits, hence the tolerance;
 segment spans (token counts, End decisions) must match exactly.
+
+Since issue 25 a segment of d seconds answers exactly round(d * fps) frames: the engine fits each segment's decoded
+frames to that count (engine/timeline.py). The recordings were not re-recorded for it, on purpose: they hold the
+decoded motion, and the test checks both sides of the fit separately. (a) The decoded motion (an engine with
+exact_durations=False) is the recording, spans included: the model's codes, its End / stop decisions and the single
+decode did not change. (b) The served motion is the recording fitted by the engine's own timeline (fit_frames), and
+its spans are the exact ones: 3 + 2 + 2 s gives (0, 60), (60, 100), (100, 140) on every model, where the default
+model (8 frames per step) decoded (0, 64), (64, 104), (104, 144). Re-recording the fitted motion instead would have
+let a change of codes hide behind a change of timeline.
 """
 from __future__ import annotations
 
@@ -18,7 +27,33 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from record_model_outputs import CASES, record
 
+from t2m.service.engine.timeline import fit_frames
+from t2m.service.engine.types import frames_for_duration
+
 DATA = Path(__file__).resolve().parents[1] / "data"
+EXACT_SPANS = {"walk_3s_g3": [[0, 60]], "stream_g3": [[0, 60], [60, 100], [100, 140]]}
+
+
+def _compare(actual: dict[str, np.ndarray], expected: dict[str, np.ndarray], what: str) -> None:
+    assert sorted(actual) == sorted(expected), what
+    for key, array in actual.items():
+        if key.endswith("_spans"):
+            np.testing.assert_array_equal(array, expected[key], err_msg=f"{what}: {key}")
+        else:
+            np.testing.assert_allclose(array, expected[key], atol=1e-4, rtol=0, err_msg=f"{what}: {key}")
+
+
+def _fitted(recorded: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The recording as the service answers it: each segment with a duration fitted to round(duration * fps)."""
+    fitted = {}
+    for name, request in CASES.items():
+        spans = recorded[name + "_spans"]
+        targets = [None if s.duration is None else frames_for_duration(s.duration) for s in request.segments]
+        counts = [int(end - start) for start, end in spans]
+        fitted[name] = fit_frames(recorded[name], counts, targets)
+        ends = np.cumsum([count if target is None else target for count, target in zip(counts, targets)])
+        fitted[name + "_spans"] = np.stack([ends - np.diff(ends, prepend=0), ends], axis=1).astype(np.int64)
+    return fitted
 
 
 @pytest.mark.parametrize("model, recording", [("gpt_model", "gpt_model_outputs.npz"),
@@ -27,11 +62,13 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 def test_model_outputs_match_the_recording(model, recording, request):
     from t2m.service.engine.engine import OnnxEngine
 
-    expected = np.load(DATA / recording)
-    actual = record(OnnxEngine.load(request.getfixturevalue(model), intra_op_threads=1))
-    assert sorted(actual) == sorted(expected.files) and len(CASES) == 3
-    for key, array in actual.items():
-        if key.endswith("_spans"):
-            np.testing.assert_array_equal(array, expected[key], err_msg=key)
-        else:
-            np.testing.assert_allclose(array, expected[key], atol=1e-4, rtol=0, err_msg=key)
+    expected = dict(np.load(DATA / recording))
+    engine = OnnxEngine.load(request.getfixturevalue(model), intra_op_threads=1)
+    served = record(engine)
+    engine.exact_durations = False
+    decoded = record(engine)
+    assert len(CASES) == 3
+    _compare(decoded, expected, "decoded (codes unchanged)")
+    _compare(served, _fitted(expected), "served (the recording fitted)")
+    for name, spans in EXACT_SPANS.items():
+        assert served[name + "_spans"].tolist() == spans, name

@@ -105,6 +105,29 @@ def test_the_default_decoder_looks_3_steps_ahead_and_35_back_as_its_graph_says(d
     assert np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
 
 
+@pytest.mark.parametrize("segments, spans", [
+    ([("a person walks forward", 9.9)], [(0, 198)]),
+    ([("a person walks forward", 3.1), ("a person runs", None), ("a person bows", 1.9)], None),
+], ids=["9.9s", "3.1-free-1.9"])
+def test_the_default_model_streams_exact_durations_early_equal_to_the_whole(default_model, segments, spans):
+    """8 frames a step: 9.9 s is 25 steps, 200 decoded frames fitted to 198 (engine/timeline.py). The first step's 8
+    decoded frames are final once step 4 is sampled and complete the first 7 fitted frames (frame 6 samples decoded
+    time 6 * 199 / 197 < 7), which go out at once; the stream put together is the whole answer, spans exact."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    engine = OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
+    chunks, streamed, whole = _streamed(engine, segments)
+    motion = engine.generate(_request(segments))
+    assert streamed.shape == whole.shape and np.abs(streamed - whole).max() < STREAM_TOLERANCE_M
+    assert chunks and len(chunks[0]) == 7
+    found = [(s.start_frame, s.end_frame) for s in motion.segments]
+    if spans is not None:
+        assert found == spans and len(chunks) >= 3
+    else:   # the free segment keeps its whole steps, the others are exact
+        assert found[0] == (0, 62) and (found[1][1] - found[1][0]) % 8 == 0 and found[2][1] - found[2][0] == 38
+    assert found[-1][1] == len(whole)
+
+
 def test_the_random_bundle_reach_is_its_graph_bound(onnx_engine, random_bundle):
     assert onnx_engine.reach == graph_reach(random_bundle / "decoder.onnx")
     assert onnx_engine.reach.ahead < 10   # one residual block per level: a short reach, many early frames

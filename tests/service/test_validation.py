@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 from fakes import FakeEngine
 
-from t2m.service.engine.types import tokens_for_duration
+from t2m.service.engine.types import frames_for_duration, tokens_for_duration
 from t2m.service.schemas import GenerateRequest, to_generation_request
 from t2m.service.settings import Settings
 
@@ -99,10 +99,12 @@ def test_text_is_trimmed():
     assert request.segments[0].text == "walk"
 
 
-@pytest.mark.parametrize("duration, frames", [(0.5, 8), (1.0, 20), (2.0, 40), (2.3, 48), (0.7, 16), (3.0, 60),
-                                             (10.0, 200)])
-def test_frame_formula(duration, frames):
-    assert tokens_for_duration(duration) * 4 == round(duration * 20 / 4) * 4 == frames
+@pytest.mark.parametrize("duration, decoded, frames", [(0.5, 8, 10), (1.0, 20, 20), (2.0, 40, 40), (2.3, 48, 46),
+                                                       (0.7, 16, 14), (3.0, 60, 60), (10.0, 200, 200)])
+def test_frame_formula(duration, decoded, frames):
+    """A model of 4 frames a step decodes whole steps; the answer has exactly round(duration * 20) frames."""
+    assert tokens_for_duration(duration) * 4 == round(duration * 20 / 4) * 4 == decoded
+    assert frames_for_duration(duration) == round(duration * 20) == frames
 
 
 def test_defaults_come_from_the_model():

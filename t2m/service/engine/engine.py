@@ -2,7 +2,8 @@
 
 Per request: its texts through the text graph as one batch; its segments' codes sampled in lockstep with every other
 request of the batch; its codes concatenated and decoded once (a continuous motion); features -> joints with
-motion.features. Nothing here knows about HTTP or about any one family: the family-specific part (which codes,
+motion.features; each segment's joints fitted to its exact frame count, round(duration * fps) (engine/timeline.py).
+Nothing here knows about HTTP or about any one family: the family-specific part (which codes,
 from which graphs) is the object its ModelFamily serves (t2m.bundle.family, engine/family_codes.py), and what it can
 do is its `capabilities`; the text encoding, the unknown-text check, the single decode and the joints are shared. A
 streamed request (`on_frames`) of a family with `early_frames` also gets its frames while its codes are sampled
@@ -23,10 +24,12 @@ from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
 from t2m.service.engine.decoder import Decoder
-from t2m.service.engine.family_codes import FamilyCodes
+from t2m.service.engine.family_codes import FamilyCodes, ends_segments
 from t2m.service.engine.reach import DecoderReach, probe_reach
+from t2m.service.engine.requests import segment_steps
 from t2m.service.engine.streaming import FrameStreamer
 from t2m.service.engine.text import TextEncoder, load_tokenizer
+from t2m.service.engine.timeline import FittedSink, Timeline, fit_frames
 from t2m.service.engine.types import (
     GenerationCancelled,
     GenerationRequest,
@@ -34,6 +37,7 @@ from t2m.service.engine.types import (
     Motion,
     RequestLimitError,
     SegmentSpan,
+    frames_for_duration,
 )
 
 __all__ = ["OnnxEngine"]
@@ -44,11 +48,14 @@ log = logging.getLogger(__name__)
 class OnnxEngine:
     """Generates motions from a bundle with onnxruntime; thread-safe (sessions are, and no state is kept per call)."""
 
-    def __init__(self, bundle: Bundle, unknown_text: str = "warn", stream_every: int = 8) -> None:
+    def __init__(self, bundle: Bundle, unknown_text: str = "warn", stream_every: int = 8,
+                 exact_durations: bool = True) -> None:
         """`unknown_text`: "warn" (a warning in the answer) or "reject" (a 422 naming the segment) for a sentence far
         from every training caption; only bundles with a caption index can tell. `stream_every`: a streamed request
         gets its first final frames at once, then the next when at least this many more codes' frames (and as many
-        as sent before) are final (engine/streaming.py; one decode each)."""
+        as sent before) are final (engine/streaming.py; one decode each). `exact_durations` False answers the
+        decoded frames as they are (round(duration * fps / f) * f a segment): what the fixed-seed recordings and
+        benchmarks/join_smoothness.py compare the fitted frames with."""
         if unknown_text not in ("warn", "reject"):
             raise ValueError(f"unknown_text must be 'warn' or 'reject', got {unknown_text!r}")
         manifest = bundle.manifest
@@ -69,6 +76,7 @@ class OnnxEngine:
             self.decoder.decode, manifest.codebook_size, manifest.frames_per_token,
             depth=manifest.residual_layers if self.capabilities.code_depth else None)
         self.stream_every = stream_every
+        self.exact_durations = exact_durations
         self.unknown_text = unknown_text
         info = manifest.caption_index
         self.caption_index = None if info is None else CaptionIndex.load(bundle.path / info.file, manifest.text_dim)
@@ -85,13 +93,16 @@ class OnnxEngine:
                         if key in raw}, "unknown_text": self._unknown_text_details(),
                      "streaming": self._streaming_details(),
                      "family": manifest.family,
-                     **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})})
+                     **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
+            ends_segments=ends_segments(self.codes))
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
-             inter_op_threads: int = 1, unknown_text: str = "warn", stream_every: int = 8) -> OnnxEngine:
+             inter_op_threads: int = 1, unknown_text: str = "warn", stream_every: int = 8,
+             exact_durations: bool = True) -> OnnxEngine:
         return cls(load_bundle(path, check_hashes=check_hashes, intra_op_threads=intra_op_threads,
-                               inter_op_threads=inter_op_threads), unknown_text=unknown_text, stream_every=stream_every)
+                               inter_op_threads=inter_op_threads), unknown_text=unknown_text, stream_every=stream_every,
+                   exact_durations=exact_durations)
 
     def _streaming_details(self) -> dict:
         """What /health says about streamed frames: how far the decoder looks ahead, hence when frames can go."""
@@ -103,12 +114,20 @@ class OnnxEngine:
 
     def _stream_early(self, job: Any, request: GenerationRequest) -> None:
         """Give a streamed request's job a FrameStreamer as its `progress` hook (families with early frames; the
-        others stream at the end)."""
+        others stream at the end), its frames fitted on the way by the request's Timeline as the whole answer's are."""
         if request.on_frames is None or self.reach is None:
             return
-        streamer = FrameStreamer(self.decoder.decode, self.skeleton, self.reach, self.limits.frames_per_token,
-                                 self.stream_every, request.on_frames)
+        per_token = self.limits.frames_per_token
+        planned = [None if steps is None else steps * per_token for steps in segment_steps(request, self.limits)]
+        sink = FittedSink(Timeline(self._targets(request), planned), request.on_frames)
+        streamer = FrameStreamer(self.decoder.decode, self.skeleton, self.reach, per_token, self.stream_every, sink)
         job.progress = streamer.codes_arrived
+
+    def _targets(self, request: GenerationRequest) -> list[int | None]:
+        """Each segment's frames in the answer: round(duration * fps), or None (the decoded ones) for a null
+        duration, or for every segment without exact durations."""
+        return [None if segment.duration is None or not self.exact_durations
+                else frames_for_duration(segment.duration, self.limits.fps) for segment in request.segments]
 
     def _unknown_text_details(self) -> dict:
         """What /health says about detecting sentences the model was not trained on."""
@@ -207,18 +226,22 @@ class OnnxEngine:
 
     def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray], warnings: list[str]) -> Motion:
         per_token = self.limits.frames_per_token
-        spans, start = [], 0
-        for segment, codes in zip(request.segments, segment_codes):
-            spans.append(SegmentSpan(text=segment.text, start_frame=start, end_frame=start + len(codes) * per_token))
-            start += len(codes) * per_token
+        decoded = [len(codes) * per_token for codes in segment_codes]
         features = self.decoder.decode(np.concatenate(segment_codes))
-        if len(features) != start:
-            raise RuntimeError(f"decoder.onnx returned {len(features)} frames for {start // per_token} tokens, "
-                               f"expected {start} (frames_per_token {per_token})")
-        joints = np.asarray(features_to_joints(features, self.skeleton), dtype=np.float32)
+        if len(features) != sum(decoded):
+            raise RuntimeError(f"decoder.onnx returned {len(features)} frames for {sum(decoded) // per_token} tokens, "
+                               f"expected {sum(decoded)} (frames_per_token {per_token})")
+        targets = self._targets(request)
+        joints = fit_frames(np.asarray(features_to_joints(features, self.skeleton), dtype=np.float32), decoded,
+                            targets)
+        spans, start = [], 0
+        for segment, target, frames in zip(request.segments, targets, decoded):
+            end = start + (frames if target is None else target)
+            spans.append(SegmentSpan(text=segment.text, start_frame=start, end_frame=end))
+            start = end
         warnings = list(warnings)
         if request.guidance != 1.0 and not self.limits.unconditional_branch:
             warnings.append(f"guidance {request.guidance:g} requested but model {self.limits.name!r} was trained "
                             "without an unconditional branch; the null-condition logits are untrained")
         return Motion(joints=joints, fps=self.limits.fps, segments=spans, seed=request.seed,
-                      tokens=start // per_token, warnings=warnings)
+                      tokens=sum(decoded) // per_token, warnings=warnings)

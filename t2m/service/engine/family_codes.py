@@ -3,7 +3,9 @@
 A family's object turns requests into jobs (its own job type: checks the request against the model, encodes the
 texts, draws its own seeded generator) and jobs into per-segment codes; the engine does the rest the same way for
 every family: text warnings, one decode of the concatenated codes, joints, formats. Families whose capabilities
-say `continuous_batching` also start cohorts that step at shared boundaries (t2m.decoding.lockstep.Cohort)."""
+say `continuous_batching` also start cohorts that step at shared boundaries (t2m.decoding.lockstep.Cohort). An object
+whose model can end a segment given no duration says how in an `ends_segments` attribute (a few words, shown by
+/health; see `ends_segments` below); without it a client is told that a null duration is refused."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -14,7 +16,7 @@ import numpy as np
 from t2m.service.engine.text import TextEncoder
 from t2m.service.engine.types import GenerationRequest, ModelLimits
 
-__all__ = ["FamilyCodes", "FamilyJob"]
+__all__ = ["FamilyCodes", "FamilyJob", "ends_segments"]
 
 
 class FamilyJob(Protocol):
@@ -34,3 +36,10 @@ class FamilyCodes(Protocol):
                on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
         """Every job's segments' codes (None: cancelled on the way), all jobs batched together."""
         ...
+
+
+def ends_segments(codes: object) -> str | None:
+    """How the family's served object ends a segment of null duration ("its End token"), None when it cannot: its
+    optional `ends_segments` attribute."""
+    how = getattr(codes, "ends_segments", None)
+    return how if isinstance(how, str) and how else None

@@ -30,6 +30,8 @@ def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLim
 class GptCodes:
     """Requests -> per-segment code sequences [n] with the bundle's GPT step graph."""
 
+    ends_segments = "its End token"
+
     def __init__(self, bundle: Bundle) -> None:
         gpt = bundle.manifest.settings  # t2m.families.gpt.GptSettings
         self.step = OnnxGptStep(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,

@@ -26,6 +26,8 @@ __all__ = ["HiFiGPTCodes"]
 class HiFiGPTCodes:
     """Requests -> per-segment code maps [steps, R] with the bundle's two step graphs."""
 
+    ends_segments = "its stop head"
+
     def __init__(self, bundle: Bundle) -> None:
         manifest = bundle.manifest
         block = manifest.settings  # t2m.families.hifigpt.HiFiGPTSettings

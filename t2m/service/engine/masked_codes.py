@@ -49,6 +49,7 @@ class MaskedCodes:
         self.branches = [self._steps(bundle, b.graphs, b.columns, b.mask_id, b.pad_id, b.residual_mask_class)
                          for b in settings.branches]
         self.length: ort.InferenceSession | None = bundle.sessions.get("length.onnx")
+        self.ends_segments = None if self.length is None else "a length drawn from its length estimator"
 
     @staticmethod
     def _steps(bundle: Bundle, files: tuple[str, str], columns: int, mask_id: int, pad_id: int,

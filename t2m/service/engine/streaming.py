@@ -7,7 +7,8 @@ Once codes up to t + reach.ahead are known, the frames of code t are final (engi
 reach.behind before the first unsent code decodes them exactly as the whole decode would (up to onnxruntime's
 rounding, which differs by ~1e-6 between lengths), and their joints follow from the frames before them alone
 (motion.features.JointRecovery). The frames of the last `ahead` codes come with the whole decode at the end; the
-service sends what is left of the Motion then.
+service sends what is left of the Motion then. The joints go to `send` with the decoded frame counts of the segments
+finished so far: the engine's sink (engine/timeline.py's FittedSink) fits them to the segments' exact frame counts.
 
 When to decode: the first final code's frames at once (time to first frame), then whenever the newly final codes
 are at least `every` and at least as many as were sent before. Chunks doubling in size cost about log2(N) decodes
@@ -27,9 +28,12 @@ import numpy as np
 from t2m.motion.features import JointRecovery
 from t2m.motion.skeleton import Skeleton
 from t2m.service.engine.reach import DecoderReach
-from t2m.service.engine.types import FrameSink
 
-__all__ = ["FrameStreamer"]
+__all__ = ["DecodedSink", "FrameStreamer"]
+
+DecodedSink = Callable[[np.ndarray, Sequence[int]], None]
+"""Receives decoded joints (float32 [n, J, 3]) in order, with the decoded frame counts of the segments finished so
+far (in order)."""
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +43,7 @@ class FrameStreamer:
     docstring) and hand the joints of those frames to `send`, in order."""
 
     def __init__(self, decode: Callable[[np.ndarray], np.ndarray], skeleton: Skeleton, reach: DecoderReach,
-                 frames_per_token: int, every: int, send: FrameSink) -> None:
+                 frames_per_token: int, every: int, send: DecodedSink) -> None:
         self.decode, self.reach, self.frames_per_token = decode, reach, frames_per_token
         self.every, self.send = max(1, every), send
         self.recovery = JointRecovery(skeleton)
@@ -72,4 +76,4 @@ class FrameStreamer:
         per = self.frames_per_token
         rows = self.decode(codes)[(self.sent_codes - start) * per:(final - start) * per]
         self.sent_codes = final
-        self.send(self.recovery.push(rows).astype(np.float32))
+        self.send(self.recovery.push(rows).astype(np.float32), [len(tokens) * per for tokens in known[:-1]])

@@ -24,6 +24,7 @@ __all__ = [
     "RequestLimitError",
     "SegmentRequest",
     "SegmentSpan",
+    "frames_for_duration",
     "tokens_for_duration",
 ]
 
@@ -34,6 +35,13 @@ def tokens_for_duration(duration: float, fps: int = FPS, frames_per_token: int =
     Python's round (half to even) is the documented formula: frames = round(duration * 20 / 4) * 4.
     """
     return max(1, round(duration * fps / frames_per_token))
+
+
+def frames_for_duration(duration: float, fps: int = FPS) -> int:
+    """Frames of a segment of `duration` seconds in the answer: round(duration * fps), at least 1, whatever the
+    model's frames_per_token (the engine fits the decoded frames to it: engine/timeline.py). Python's round (half to
+    even): 0.525 s -> 10 frames."""
+    return max(1, round(duration * fps))
 
 
 @dataclass(frozen=True)
@@ -53,6 +61,7 @@ class ModelLimits:
     joint_names: tuple[str, ...] = ()
     parents: tuple[int, ...] = ()
     details: dict = field(default_factory=dict)   # extra facts shown by /health (licence, text encoder, ...)
+    ends_segments: str | None = None   # how the model ends a segment of null duration (None: it cannot; a 422)
 
     def guidance(self, requested: float | None = None) -> float:
         """The guidance scale to use: the requested one, else the model's default (1 = off for a model without a
@@ -65,6 +74,11 @@ class ModelLimits:
     def max_segment_seconds(self) -> float:
         """The length of a free (duration null) segment at most: max_tokens tokens."""
         return self.max_tokens * self.frames_per_token / self.fps
+
+    @property
+    def null_duration(self) -> bool:
+        """Whether a segment may leave its duration null (the model ends it: a stop rule or a length estimator)."""
+        return self.ends_segments is not None
 
 
 @dataclass(frozen=True)
