@@ -61,6 +61,10 @@ class Settings(BaseSettings):
     body_timeout_s: float = Field(
         30.0, gt=0, description="A request's body must be complete this long after its headers; later: 408 and the "
                                 "connection closed (`t2m serve`).")
+    keep_alive_s: int = Field(
+        10, ge=1, le=600, description="An idle kept-alive connection is closed after this long (`t2m serve`); longer "
+                                        "than common clients keep theirs (httpx: 5 s), so that a client never sends "
+                                        "on a connection the server is closing at that moment.")
     api_key: SecretStr | None = Field(None, description="If set, POST /generate needs 'Authorization: Bearer <key>'.")
     cors_origins: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="Allowed CORS origins, comma-separated in the env ('*' = any).")

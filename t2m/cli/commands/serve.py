@@ -96,7 +96,10 @@ def _serve(args: argparse.Namespace) -> int:
     # http: uvicorn's protocol with deadlines for receiving a request (T2M_HEADER_TIMEOUT_S, T2M_BODY_TIMEOUT_S),
     # named by import path so that every worker process loads it. ws="none": the API has no WebSocket route, so an
     # Upgrade request is an ordinary HTTP request with a JSON answer (not uvicorn's bare 403 handshake refusal).
+    # timeout_keep_alive: uvicorn's 5 s equals httpx's own idle expiry, and the two racing dropped a request now and
+    # then under load (a client reusing the connection the server was closing: ReadError in the slow load test).
     uvicorn.run("t2m.service.app:app_from_env", factory=True, host=args.host, port=args.port, workers=args.workers,
                 log_level=args.log_level, proxy_headers=True, forwarded_allow_ips="*", http=DEADLINE_PROTOCOL,
-                ws="none", timeout_graceful_shutdown=graceful_shutdown_seconds(settings))
+                ws="none", timeout_keep_alive=settings.keep_alive_s,
+                timeout_graceful_shutdown=graceful_shutdown_seconds(settings))
     return 0
