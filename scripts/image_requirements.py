@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import re
 import sys
-import tomllib
+
+import tomllib  # type: ignore[import-not-found,unused-ignore]  # 3.11+: the image's Python
 
 
 def requirements(pyproject: dict, extras: list[str], build_system: bool = False) -> list[str]:

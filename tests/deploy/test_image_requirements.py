@@ -3,8 +3,11 @@ onnxruntime-gpu replaces the CPU onnxruntime (both install the same module)."""
 from __future__ import annotations
 
 import importlib.util
-import tomllib
 from pathlib import Path
+
+import pytest
+
+tomllib = pytest.importorskip("tomllib", reason="Python 3.11+ (the image's script reads pyproject.toml with it)")
 
 REPO = Path(__file__).resolve().parents[2]
 

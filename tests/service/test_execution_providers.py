@@ -77,14 +77,21 @@ def test_loading_a_bundle_on_a_missing_provider_fails_before_any_session(random_
 
 @pytest.mark.skipif(HAS_CUDA, reason="this onnxruntime has CUDA: nothing to refuse")
 def test_serve_refuses_a_missing_provider_in_one_line(capsys, monkeypatch):
-    monkeypatch.delenv("T2M_EXECUTION_PROVIDERS", raising=False)
+    monkeypatch.setenv("T2M_EXECUTION_PROVIDERS", "cpu")     # recorded, so the value `serve` sets is undone
     assert main(["serve", "--providers", "cuda"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "T2M_EXECUTION_PROVIDERS=cuda" in err and "onnxruntime-gpu" in err
 
 
 def test_serve_refuses_an_unknown_provider_in_one_line(capsys, monkeypatch):
-    monkeypatch.delenv("T2M_EXECUTION_PROVIDERS", raising=False)
+    monkeypatch.setenv("T2M_EXECUTION_PROVIDERS", "cpu")     # recorded, so the value `serve` sets is undone
     assert main(["serve", "--providers", "cpu,tpu"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "unknown provider 'tpu'" in err
+
+
+def test_serve_leaves_the_environment_as_it_found_it(monkeypatch):
+    """Control for the two tests above: the environment they ran in is the default one again."""
+    import os
+
+    assert os.environ.get("T2M_EXECUTION_PROVIDERS") in (None, "cpu")
