@@ -25,9 +25,9 @@ if ! has_cuda_ort; then install+=("$(find_wheel 'onnxruntime_gpu-*.whl')"); fi
 if ! PYTHONPATH="$site" "$python" -c "import onnx" 2>/dev/null; then
   install+=("$(find_wheel 'onnx-*.whl')")
   "$python" -c "import ml_dtypes" 2>/dev/null || install+=("$(find_wheel 'ml_dtypes-*.whl')")
-  # onnx needs protobuf >= 4.25.1 and typing_extensions
-  "$python" -c "import google.protobuf as p, sys; sys.exit(int(p.__version__.split('.')[0]) < 5)" 2>/dev/null \
-    || install+=("$(find_wheel 'protobuf-*.whl')")
+  # onnx 1.23's generated code checks for a protobuf runtime >= 6.31.1 (the wheelhouse's: 7.36.2)
+  "$python" -c "import google.protobuf as p, sys; sys.exit(tuple(map(int, p.__version__.split('.')[:3])) < (6, 31, 1))" \
+    2>/dev/null || install+=("$(find_wheel 'protobuf-*.whl')")
   "$python" -c "import typing_extensions" 2>/dev/null || install+=("$(find_wheel 'typing_extensions-*.whl')")
 fi
 wanted=()
