@@ -5,22 +5,32 @@
 #   scripts/build_wheelhouse.sh deploy/wheelhouse   # on a machine whose pip can reach an index (or a mirror)
 #   docker build --build-arg WHEELHOUSE=1 [--build-arg BASE_IMAGE=my-python3.11] -t t2m-service .
 # Any base image with python3 (3.10+, the venv module) and groupadd/useradd works: the default is the official one.
+# GPU image (docs/service.md "GPUs"): a CUDA 13 + cuDNN 9 runtime base (python3 is added from apt when it lacks one)
+# and the `gpu` extra, which installs onnxruntime-gpu instead of onnxruntime:
+#   docker build --build-arg BASE_IMAGE=nvidia/cuda:13.0.1-cudnn-runtime-ubuntu24.04 --build-arg EXTRAS=gpu \
+#       -t t2m-service:gpu .                    # offline: T2M_IMAGE_PYTHON=3.12 T2M_EXTRAS=gpu build_wheelhouse.sh
+#   docker run --gpus all -e T2M_EXECUTION_PROVIDERS=cuda -p 8000:8000 t2m-service:gpu
 ARG BASE_IMAGE=python:3.11-slim
 
 # ---- builder: a virtualenv holding the project wheel and its runtime dependencies (no [train] extra) ------------
 FROM ${BASE_IMAGE} AS builder
 # WHEELHOUSE=1: install from deploy/wheelhouse only (--no-index); 0: from the package index pip is configured for
 ARG WHEELHOUSE=0
+# EXTRAS: optional dependency groups of pyproject.toml to install too (gpu: onnxruntime-gpu replaces onnxruntime)
+ARG EXTRAS=
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PYTHONDONTWRITEBYTECODE=1
+# a CUDA runtime base has no Python: take the distribution's (a no-op on python:* images)
+RUN python3 -c "import venv, ensurepip" 2>/dev/null || { apt-get update \
+        && apt-get install -y --no-install-recommends python3 python3-venv && rm -rf /var/lib/apt/lists/*; }
 RUN python3 -m venv /opt/venv
 ENV PATH=/opt/venv/bin:$PATH
 WORKDIR /src
 # the dependency layer is cached until pyproject.toml or the wheelhouse changes
 COPY pyproject.toml ./
+COPY scripts/image_requirements.py scripts/
 COPY deploy/wheelhouse/ /wheelhouse/
 RUN set -eu; \
-    python -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']))" \
-        > /tmp/requirements.txt; \
+    python scripts/image_requirements.py pyproject.toml "$EXTRAS" > /tmp/requirements.txt; \
     if [ "$WHEELHOUSE" = 1 ]; then \
         ls /wheelhouse/*.whl > /dev/null 2>&1 \
             || { echo "WHEELHOUSE=1 but deploy/wheelhouse holds no wheels: run scripts/build_wheelhouse.sh" >&2; exit 1; }; \
@@ -36,6 +46,8 @@ RUN pip wheel --no-deps --wheel-dir /wheels . && pip install --no-deps /wheels/*
 
 # ---- runtime: the venv (its wheel carries the default and masked models), a non-root user ---------------------
 FROM ${BASE_IMAGE} AS runtime
+RUN python3 -c "import venv" 2>/dev/null || { apt-get update \
+        && apt-get install -y --no-install-recommends python3 && rm -rf /var/lib/apt/lists/*; }
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \

@@ -18,7 +18,7 @@ MotionGPT.forward_step; both take and return numpy arrays.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -40,12 +40,14 @@ __all__ = ["GptCohort", "GptStep", "SamplingJob", "sample_codes"]
 
 
 class GptStep(Protocol):
-    """One autoregressive step for a batch of rows, with an explicit key/value cache."""
+    """One autoregressive step for a batch of rows, with an explicit key/value cache. The cache is whatever the step
+    returns (a numpy array, or a handle to one on a device); a step may also have `keep_rows(past, keep)`
+    (t2m.decoding.lockstep.keep_rows: the numpy default slices the batch axis)."""
 
-    def empty_cache(self, batch: int) -> np.ndarray: ...
+    def empty_cache(self, batch: int) -> Any: ...
 
     def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                 past: Any) -> tuple[np.ndarray, Any]:
         """(cond [B, Dt], previous token [B], position, length [B], past) -> (logits [B, V+1], present)."""
         ...
 
@@ -86,7 +88,7 @@ class GptCohort(Cohort):
             for s, token in zip(active, _choose(job, active, logits, rows, batch, self.end_id).tolist()):
                 _advance(batch.segments[s], token, self.end_id, self.max_tokens)
             report_progress(batch, job, active)
-        drop_finished(batch)
+        drop_finished(batch, self.step)
         self.position += 1
 
 

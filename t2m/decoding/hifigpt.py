@@ -19,7 +19,7 @@ service wraps temporal_step.onnx / residual_step.onnx, the PyTorch reference wra
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -31,26 +31,27 @@ __all__ = ["HiFiGPTCohort", "ResidualGptStep", "SamplingJob", "TemporalStep", "d
 
 
 class TemporalStep(Protocol):
-    """The temporal GPT, one position with its KV cache."""
+    """The temporal GPT, one position with its KV cache (a numpy array or the step's handle to one on a device; a
+    step may have `keep_rows(past, keep)`, see t2m.decoding.lockstep.keep_rows)."""
 
     depth: int
 
-    def empty_cache(self, batch: int) -> np.ndarray: ...
+    def empty_cache(self, batch: int) -> Any: ...
 
     def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 past: Any) -> tuple[np.ndarray, np.ndarray, Any]:
         """(cond [B, Dt], codes of step `position` [B, R], position, length [B], past) -> (context [B, E], stop logit
         [B], present)."""
         ...
 
 
 class ResidualGptStep(Protocol):
-    """The residual GPT, one depth with its own KV cache (fresh at every time step)."""
+    """The residual GPT, one depth with its own KV cache (fresh at every time step; numpy or the step's handle)."""
 
-    def empty_cache(self, batch: int) -> np.ndarray: ...
+    def empty_cache(self, batch: int) -> Any: ...
 
     def __call__(self, context: np.ndarray, code: np.ndarray, depth: int,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                 past: Any) -> tuple[np.ndarray, Any]:
         """(context [B, E], code of depth - 1 [B], depth, past) -> (logits [B, K], present)."""
         ...
 
@@ -81,13 +82,13 @@ class HiFiGPTCohort(lockstep.Cohort):
                 for s, stopped in zip(free, stops):
                     batch.segments[s].done = bool(stopped)
             live.append((job, active))
-        context = context[lockstep.drop_finished(batch)]
+        context = context[lockstep.drop_finished(batch, self.temporal)]
         if len(batch.owner):
             going = [(job, kept) for job, active in live if (kept := [s for s in active if not batch.segments[s].done])]
             for s, row in depth_loop(self.residual, context, going, batch.owner, depth, on_step).items():
                 batch.segments[s].tokens.append(row)
                 batch.segments[s].reached(self.max_tokens)
-            lockstep.drop_finished(batch)
+            lockstep.drop_finished(batch, self.temporal)
         for job, active in live:
             lockstep.report_progress(batch, job, active)
         self.position += 1

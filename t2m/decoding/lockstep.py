@@ -4,8 +4,10 @@ Each segment of each request is its own sequence (condition token, then one entr
 batch are always at the same position. Per segment there is a cond row and, when its request's guidance != 1, a null
 row (zero condition) after all cond rows; logits are combined as uncond + s * (cond - uncond). A segment with a target
 stops at it; a free one stops when the family's rule says so or at max_tokens. Finished rows leave the batch (and its
-cache) so that a long segment does not make the short ones pay. Randomness comes from each request's own numpy
-Generator, segments in request order, so a request's result does not depend on what shares its batch. A job's
+cache) so that a long segment does not make the short ones pay: the loop asks the step to `keep_rows` of its cache
+(a step may keep its cache on a device as an opaque handle; the numpy default slices the batch axis). Randomness
+comes from each request's own numpy Generator, segments in request order, so a request's result does not depend on
+what shares its batch. A job's
 `progress` sees its segments' steps after every step that gave it some (the service streams frames from them).
 """
 from __future__ import annotations
@@ -27,6 +29,7 @@ __all__ = [
     "check_targets",
     "drop_finished",
     "guided",
+    "keep_rows",
     "live_segments",
     "report_progress",
     "results",
@@ -92,7 +95,7 @@ class StepRows:
     cond: np.ndarray                    # float32 [rows, Dt]
     length: np.ndarray                  # int64 [rows]: the target (0 = free), the length input
     owner: np.ndarray                   # int64 [rows] -> segment index
-    past: np.ndarray
+    past: Any                           # the step's cache: a numpy array, or the step's own handle (a device)
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,15 @@ def check_targets(jobs: Sequence[SamplingJob], max_tokens: int) -> None:
                 raise ValueError(f"segment {index}: target of {target} tokens is outside 1..{max_tokens}")
 
 
-def start(jobs: Sequence[SamplingJob], empty_cache: Callable[[int], np.ndarray]) -> StepRows:
+def keep_rows(step: object, past: Any, keep: np.ndarray) -> Any:
+    """`past` with only the rows where `keep` is true: the step's own `keep_rows(past, keep)` when it has one (a
+    cache kept on a device, t2m.service.engine.bound_step), else the numpy default, rows along axis 2 of
+    [n_layer, 2, B, n_head, P, head_dim]."""
+    own = getattr(step, "keep_rows", None)
+    return own(past, keep) if own is not None else past[:, :, keep]
+
+
+def start(jobs: Sequence[SamplingJob], empty_cache: Callable[[int], Any]) -> StepRows:
     """One cond row per segment of every job, then one null row per segment of every guided job."""
     segments: list[Segment] = []
     of_job: list[list[int]] = []
@@ -172,12 +183,13 @@ def report_progress(batch: StepRows, job: SamplingJob, active: Sequence[int]) ->
     job.progress([segment.tokens for segment in mine], [segment.done for segment in mine])
 
 
-def drop_finished(batch: StepRows) -> np.ndarray:
-    """Remove the rows of finished segments (and their cache); returns the kept rows' mask."""
+def drop_finished(batch: StepRows, step: object = None) -> np.ndarray:
+    """Remove the rows of finished segments (and their cache, through `step`'s `keep_rows`: see keep_rows);
+    returns the kept rows' mask."""
     keep = np.asarray([not batch.segments[s].done for s in batch.owner], dtype=bool)
     if not keep.all():
         batch.owner, batch.cond, batch.length = batch.owner[keep], batch.cond[keep], batch.length[keep]
-        batch.past = batch.past[:, :, keep]
+        batch.past = keep_rows(step, batch.past, keep)
     return keep
 
 
@@ -198,7 +210,7 @@ class Cohort:
     """
 
     def __init__(self, jobs: Sequence[SamplingJob], max_tokens: int,
-                 empty_cache: Callable[[int], np.ndarray]) -> None:
+                 empty_cache: Callable[[int], Any]) -> None:
         check_targets(jobs, max_tokens)
         self.jobs, self.max_tokens = jobs, max_tokens
         self.batch = start(jobs, empty_cache)

@@ -47,7 +47,8 @@ def load_onnx_engine(settings: Settings) -> Engine:
 
     return OnnxEngine.load(settings.bundle_path, check_hashes=settings.verify_hashes,
                            intra_op_threads=settings.intra_op_threads, inter_op_threads=settings.inter_op_threads,
-                           unknown_text=settings.unknown_text, stream_every=settings.stream_every_tokens)
+                           unknown_text=settings.unknown_text, stream_every=settings.stream_every_tokens,
+                           execution=settings.execution)
 
 
 def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engine]) -> None:

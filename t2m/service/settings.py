@@ -6,12 +6,15 @@ the service the same way: `T2M_MAX_QUEUE=4 t2m serve` and `create_app(Settings(m
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import AliasChoices, Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from t2m.bundles import DEFAULT_BUNDLE
+
+if TYPE_CHECKING:
+    from t2m.service.engine.execution import Execution
 
 __all__ = ["Settings", "default_bundle_path"]
 
@@ -19,6 +22,13 @@ __all__ = ["Settings", "default_bundle_path"]
 def default_bundle_path() -> Path:
     """The embedded default model, shipped inside the package (t2m/bundles/default), wherever it is installed."""
     return DEFAULT_BUNDLE
+
+
+Provider = Literal["cpu", "cuda"]
+
+
+def _cpu_only() -> list[Provider]:
+    return ["cpu"]
 
 
 class Settings(BaseSettings):
@@ -41,6 +51,16 @@ class Settings(BaseSettings):
     intra_op_threads: int = Field(1, ge=0, description="onnxruntime intra-op threads per session (0 = ORT's choice: "
                                                        "all cores, faster only for release-size imported models).")
     inter_op_threads: int = Field(1, ge=0, description="onnxruntime inter-op threads per session.")
+    execution_providers: Annotated[list[Provider], NoDecode] = Field(
+        default_factory=_cpu_only, min_length=1,
+        description="onnxruntime execution providers of the model sessions, in order, comma-separated in the env: "
+                    "'cpu', or 'cuda' (CUDA, then CPU for what CUDA lacks; needs onnxruntime-gpu: the 'gpu' "
+                    "extra). A provider the installed onnxruntime lacks stops the start-up with a one-line error "
+                    "naming this setting (`t2m serve --providers`).")
+    io_binding: Literal["auto", "on", "off"] = Field(
+        "auto", description="Keep the step graphs' key/value caches on the device between steps (onnxruntime "
+                            "I/O binding): 'auto' = on when the providers include a GPU, 'on' also on CPU (the "
+                            "tests), 'off' never.")
     engine_workers: int = Field(1, ge=1, le=16, description="Worker threads that run batches of generations.")
     max_queue: int = Field(16, ge=1, description="Requests allowed to wait for a worker; one more gets 429.")
     max_batch_rows: int = Field(64, ge=1, description="GPT rows (segments x cond/uncond) merged into one batch.")
@@ -78,7 +98,7 @@ class Settings(BaseSettings):
         "warn", description="A sentence far from every training caption of the model (bundles with a caption index): "
                             "'warn' answers 200 with a warning naming the segment, 'reject' answers 422 naming it.")
 
-    @field_validator("cors_origins", "extra_model_dirs", mode="before")
+    @field_validator("cors_origins", "extra_model_dirs", "execution_providers", mode="before")
     @classmethod
     def _split_commas(cls, value: object) -> object:
         """Accept 'https://a.example, https://b.example' (or 'models/a,models/b') from the environment as well as
@@ -86,6 +106,19 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [item.strip() for item in value.split(",") if item.strip()]
         return value
+
+    @field_validator("execution_providers", mode="after")
+    @classmethod
+    def _providers_once(cls, value: list[Provider]) -> list[Provider]:
+        """'cuda,cuda' is 'cuda': each provider once, in its first place."""
+        return list(dict.fromkeys(value))
+
+    @property
+    def execution(self) -> Execution:
+        """The providers and the binding choice, as the bundle loader takes them."""
+        from t2m.service.engine.execution import Execution
+
+        return Execution(tuple(self.execution_providers), self.io_binding)
 
     @property
     def model_dirs(self) -> list[Path]:

@@ -115,3 +115,36 @@ def test_the_queue_metric_the_alternative_hpa_scales_on_exists():
     metrics = ServiceMetrics()
     metrics.add_model("m", "1", queue_depth=lambda: 3.0, in_flight=lambda: 0.0)
     assert f'{metric}{{model="m"}} 3.0' in generate_latest(metrics.registry).decode()
+
+
+def gpu_deployment() -> dict:
+    (doc,) = [doc for doc in yaml.safe_load_all((MANIFESTS / "gpu" / "deployment.yaml").read_text()) if doc]
+    return doc
+
+
+def test_gpu_variant_validates_and_asks_for_one_gpu_with_cuda():
+    doc = gpu_deployment()
+    kubernetes_validate.validate(doc, KUBERNETES_VERSION, strict=True)
+    (c,) = doc["spec"]["template"]["spec"]["containers"]
+    assert c["resources"]["limits"]["nvidia.com/gpu"] == c["resources"]["requests"]["nvidia.com/gpu"] == 1
+    env = {e["name"]: e.get("value") for e in c["env"]}
+    assert env["T2M_EXECUTION_PROVIDERS"] == "cuda" and Settings(execution_providers="cuda").execution.binds
+    fields = {f"T2M_{name.upper()}" for name in Settings.model_fields}
+    assert set(env) <= fields, set(env) - fields
+    (listed,) = [doc for doc in yaml.safe_load_all((MANIFESTS / "gpu" / "kustomization.yaml").read_text()) if doc]
+    assert listed["resources"] == ["deployment.yaml"]
+
+
+def test_gpu_variant_differs_from_the_cpu_deployment_only_where_it_says():
+    """Probes, security, ports, volumes and the rest stay the CPU deployment's (no drift between the two)."""
+    cpu, gpu = deployment(), gpu_deployment()
+    cpu_pod, gpu_pod = cpu["spec"]["template"]["spec"], gpu["spec"]["template"]["spec"]
+    (cpu_c,), (gpu_c,) = cpu_pod.pop("containers"), gpu_pod.pop("containers")
+    assert gpu_pod.pop("tolerations") == [{"key": "nvidia.com/gpu", "operator": "Exists", "effect": "NoSchedule"}]
+    assert gpu_pod == cpu_pod
+    assert gpu_c["image"] == cpu_c["image"] + "-gpu"
+    for key in ("image", "env", "resources", "startupProbe"):
+        cpu_c.pop(key), gpu_c.pop(key)
+    assert gpu_c == cpu_c
+    assert {k: v for k, v in gpu["spec"].items() if k not in ("replicas", "template")} == \
+        {k: v for k, v in cpu["spec"].items() if k not in ("replicas", "template")}

@@ -28,6 +28,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "(T2M_EXTRA_MODEL_DIRS is replaced); default: T2M_MODEL_DIR (+ T2M_EXTRA_MODEL_DIRS), "
                              "else the embedded t2m/bundles/default. An embedded bundle can be named by its folder "
                              "name: --model default --model masked")
+    parser.add_argument("--providers", default=None, metavar="LIST",
+                        help="onnxruntime execution providers of the model sessions, comma-separated: cpu, or cuda "
+                             "(CUDA then CPU; needs onnxruntime-gpu, the 'gpu' extra). Sets "
+                             "T2M_EXECUTION_PROVIDERS (default: that variable, else cpu)")
     parser.add_argument("--workers", type=int, default=1,
                         help="uvicorn worker processes, each with its own model copies and /metrics (default 1)")
     parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
@@ -71,6 +75,25 @@ def check_bundles(directories: Sequence[Path]) -> None:
         seen[name] = directory
 
 
+def provider_list(text: str) -> str:
+    """`--providers` checked (an unknown name: a one-line ProviderError naming the setting), as the env holds it."""
+    from t2m.service.engine.execution import ort_providers
+
+    names = [item.strip().lower() for item in text.split(",") if item.strip()]
+    ort_providers(names)
+    if not names:
+        raise ValueError("--providers: name at least one provider (cpu, cuda)")
+    return ",".join(names)
+
+
+def check_providers(settings: Settings) -> None:
+    """Fail now, in one line naming T2M_EXECUTION_PROVIDERS, if the installed onnxruntime lacks a provider (rather
+    than a /health 503 after the server started)."""
+    from t2m.service.engine.execution import check_available
+
+    check_available(settings.execution_providers)
+
+
 def graceful_shutdown_seconds(settings: Settings) -> int:
     """How long a stopping server waits for its requests: the request timeout and a few seconds to send the answer."""
     return math.ceil(settings.request_timeout_s) + 5
@@ -89,7 +112,10 @@ def _serve(args: argparse.Namespace) -> int:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
     if args.model:
         os.environ.update(model_environment(args.model))
+    if args.providers is not None:
+        os.environ["T2M_EXECUTION_PROVIDERS"] = provider_list(args.providers)
     settings = Settings()
+    check_providers(settings)
     check_bundles(settings.model_dirs)
     # SIGTERM (docker stop, Kubernetes): stop accepting, finish the requests in flight, exit. A generation ends
     # within the request timeout (504 after it), so waiting longer than that only delays the exit of a stuck one.

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 import torch
@@ -16,26 +17,53 @@ from t2m.decoding.gpt import SamplingJob
 from t2m.decoding.gpt import sample_codes as run_gpt_loop
 from t2m.model.networks.gpt import MotionGPT
 
-__all__ = ["TorchGptStep", "evaluating", "only_job", "reference_job", "sample_codes"]
+__all__ = ["DeviceCache", "TorchGptStep", "evaluating", "on_device", "only_job", "reference_job", "sample_codes"]
 
 
-class TorchGptStep:
-    """MotionGPT.forward_step with numpy in and out (the cache stays a float32 array between steps)."""
+def on_device(array: np.ndarray, device: torch.device | None) -> torch.Tensor:
+    """A numpy input as a tensor, on `device` when one is given."""
+    tensor = torch.from_numpy(np.ascontiguousarray(array))
+    return tensor if device is None else tensor.to(device)
 
-    def __init__(self, gpt: MotionGPT) -> None:
+
+class DeviceCache:
+    """Where a reference step keeps its cache: a float32 numpy array between steps (no device, the parity tests),
+    or a tensor left on `device` (the GPU benchmark: only what the sampler reads comes back to the host), with
+    `keep_rows` (t2m.decoding.lockstep.keep_rows) slicing it where it is."""
+
+    def __init__(self, device: torch.device | str | None) -> None:
+        self.device = None if device is None else torch.device(device)
+
+    def cache_in(self, past: Any) -> torch.Tensor:
+        return on_device(past, self.device) if isinstance(past, np.ndarray) else past
+
+    def cache_out(self, present: torch.Tensor) -> Any:
+        return present.numpy() if self.device is None else present
+
+    def keep_rows(self, past: Any, keep: np.ndarray) -> Any:
+        if isinstance(past, np.ndarray):
+            return past[:, :, keep]
+        return past[:, :, torch.from_numpy(keep).to(past.device)]
+
+
+class TorchGptStep(DeviceCache):
+    """MotionGPT.forward_step with numpy in and out (the cache: DeviceCache)."""
+
+    def __init__(self, gpt: MotionGPT, device: torch.device | str | None = None) -> None:
+        super().__init__(device)
         self.gpt = gpt
 
-    def empty_cache(self, batch: int) -> np.ndarray:
-        return self.gpt.empty_cache(batch).numpy()
+    def empty_cache(self, batch: int) -> Any:
+        return self.cache_out(self.gpt.empty_cache(batch, self.device))
 
     @torch.no_grad()
     def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lengths = torch.from_numpy(length) if self.gpt.config.length_conditioning else torch.zeros(len(length),
-                                                                                                     dtype=torch.long)
-        logits, present = self.gpt.forward_step(torch.from_numpy(cond), torch.from_numpy(token), position, lengths,
-                                                torch.from_numpy(np.ascontiguousarray(past)))
-        return logits.numpy(), present.numpy()
+                 past: Any) -> tuple[np.ndarray, Any]:
+        lengths = (on_device(length, self.device) if self.gpt.config.length_conditioning else
+                   torch.zeros(len(length), dtype=torch.long, device=self.device))
+        logits, present = self.gpt.forward_step(on_device(cond, self.device), on_device(token, self.device),
+                                                position, lengths, self.cache_in(past))
+        return logits.cpu().numpy(), self.cache_out(present)
 
 
 def reference_job(cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int | None], max_tokens: int,

@@ -8,52 +8,53 @@ reference and the service choose the same codes and the same stops whenever thei
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
 from t2m.decoding.hifigpt import sample_code_rows
 from t2m.model.networks.hifigpt import HiFiGPT
-from t2m.model.sampling.gpt import evaluating, only_job, reference_job
+from t2m.model.sampling.gpt import DeviceCache, evaluating, on_device, only_job, reference_job
 
 __all__ = ["TorchResidualGptStep", "TorchTemporalStep", "sample_code_maps"]
 
 
-class TorchTemporalStep:
-    """HiFiGPT.temporal_step with numpy in and out (the cache stays a float32 array between steps)."""
+class TorchTemporalStep(DeviceCache):
+    """HiFiGPT.temporal_step with numpy in and out (the cache: t2m.model.sampling.gpt.DeviceCache)."""
 
-    def __init__(self, model: HiFiGPT) -> None:
+    def __init__(self, model: HiFiGPT, device: torch.device | str | None = None) -> None:
+        super().__init__(device)
         self.model = model
         self.depth = model.config.depth
 
-    def empty_cache(self, batch: int) -> np.ndarray:
-        return self.model.empty_cache("temporal", batch).numpy()
+    def empty_cache(self, batch: int) -> Any:
+        return self.cache_out(self.model.empty_cache("temporal", batch, self.device))
 
     @torch.no_grad()
     def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        lengths = torch.from_numpy(length) if self.model.config.length_conditioning else None
-        context, stop, present = self.model.temporal_step(torch.from_numpy(cond), torch.from_numpy(codes), position,
-                                                          lengths, torch.from_numpy(np.ascontiguousarray(past)))
-        return context.numpy(), stop.numpy(), present.numpy()
+                 past: Any) -> tuple[np.ndarray, np.ndarray, Any]:
+        lengths = on_device(length, self.device) if self.model.config.length_conditioning else None
+        context, stop, present = self.model.temporal_step(on_device(cond, self.device), on_device(codes, self.device),
+                                                          position, lengths, self.cache_in(past))
+        return context.cpu().numpy(), stop.cpu().numpy(), self.cache_out(present)
 
 
-class TorchResidualGptStep:
-    """HiFiGPT.residual_step with numpy in and out."""
+class TorchResidualGptStep(DeviceCache):
+    """HiFiGPT.residual_step with numpy in and out (the cache: DeviceCache)."""
 
-    def __init__(self, model: HiFiGPT) -> None:
+    def __init__(self, model: HiFiGPT, device: torch.device | str | None = None) -> None:
+        super().__init__(device)
         self.model = model
 
-    def empty_cache(self, batch: int) -> np.ndarray:
-        return self.model.empty_cache("residual", batch).numpy()
+    def empty_cache(self, batch: int) -> Any:
+        return self.cache_out(self.model.empty_cache("residual", batch, self.device))
 
     @torch.no_grad()
-    def __call__(self, context: np.ndarray, code: np.ndarray, depth: int,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        logits, present = self.model.residual_step(torch.from_numpy(np.ascontiguousarray(context)),
-                                                   torch.from_numpy(code), depth,
-                                                   torch.from_numpy(np.ascontiguousarray(past)))
-        return logits.numpy(), present.numpy()
+    def __call__(self, context: np.ndarray, code: np.ndarray, depth: int, past: Any) -> tuple[np.ndarray, Any]:
+        logits, present = self.model.residual_step(on_device(context, self.device), on_device(code, self.device),
+                                                   depth, self.cache_in(past))
+        return logits.cpu().numpy(), self.cache_out(present)
 
 
 def sample_code_maps(model: HiFiGPT, cond: torch.Tensor | np.ndarray, target_tokens: Sequence[int | None],

@@ -14,33 +14,38 @@ import torch
 from t2m.decoding.masked import MaskedJob, MaskedStep, ResidualStep, sample_token_maps
 from t2m.model.networks.masked_transformer import MaskedTransformer
 from t2m.model.networks.residual_transformer import ResidualTransformer
+from t2m.model.sampling.gpt import on_device
 
 __all__ = ["TorchMaskedStep", "TorchResidualStep", "generate_token_maps"]
 
 
 class TorchMaskedStep:
-    """MaskedTransformer.forward with numpy in and out."""
+    """MaskedTransformer.forward with numpy in and out (on `device` when given: the GPU benchmark)."""
 
-    def __init__(self, model: MaskedTransformer) -> None:
+    def __init__(self, model: MaskedTransformer, device: torch.device | str | None = None) -> None:
         self.model = model.eval()
+        self.device = None if device is None else torch.device(device)
         self.columns, self.mask_id = model.config.columns, model.config.mask_id
 
     @torch.no_grad()
     def __call__(self, tokens: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:
-        return self.model(torch.from_numpy(tokens), torch.from_numpy(cond), torch.from_numpy(length)).numpy()
+        device = self.device
+        return self.model(on_device(tokens, device), on_device(cond, device), on_device(length, device)).cpu().numpy()
 
 
 class TorchResidualStep:
-    """ResidualTransformer.forward with numpy in and out."""
+    """ResidualTransformer.forward with numpy in and out (on `device` when given)."""
 
-    def __init__(self, model: ResidualTransformer) -> None:
+    def __init__(self, model: ResidualTransformer, device: torch.device | str | None = None) -> None:
         self.model = model.eval()
+        self.device = None if device is None else torch.device(device)
         self.layers, self.pad_id, self.mask_id = model.config.residual_layers, model.pad_id, model.mask_id
 
     @torch.no_grad()
     def __call__(self, codes: np.ndarray, layer: np.ndarray, cond: np.ndarray, length: np.ndarray) -> np.ndarray:
-        return self.model(torch.from_numpy(codes), torch.from_numpy(layer), torch.from_numpy(cond),
-                          torch.from_numpy(length)).numpy()
+        device = self.device
+        return self.model(on_device(codes, device), on_device(layer, device), on_device(cond, device),
+                          on_device(length, device)).cpu().numpy()
 
 
 def generate_token_maps(masked: MaskedTransformer | MaskedStep, residual: ResidualTransformer | ResidualStep | None,

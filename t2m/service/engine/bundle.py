@@ -27,8 +27,9 @@ from t2m.bundle import (
     read_manifest_dict,
     required_files,
 )
+from t2m.service.engine.execution import Execution, check_available
 
-__all__ = ["Bundle", "BundleError", "Manifest", "load_bundle", "session_options"]
+__all__ = ["Bundle", "BundleError", "Execution", "Manifest", "load_bundle", "open_session", "session_options"]
 
 log = logging.getLogger(__name__)
 
@@ -57,11 +58,19 @@ def session_options(intra_op_threads: int = 0, inter_op_threads: int = 1) -> ort
     return options
 
 
-def _open_session(file: Path, options: ort.SessionOptions) -> ort.InferenceSession:
+def open_session(file: Path | bytes, options: ort.SessionOptions,
+                 execution: Execution | None = None) -> ort.InferenceSession:
+    """A graph's session on the execution's providers (default: CPU only); a session that could not get the first
+    provider it asked for is refused naming T2M_EXECUTION_PROVIDERS (engine/execution.py)."""
+    execution = execution or Execution()
+    name = str(file) if isinstance(file, Path) else "an in-memory graph"
     try:
-        return ort.InferenceSession(str(file), sess_options=options, providers=["CPUExecutionProvider"])
+        session = ort.InferenceSession(str(file) if isinstance(file, Path) else file, sess_options=options,
+                                       providers=execution.ort_providers)
     except Exception as error:  # onnxruntime raises its own exception types for a broken graph
-        raise BundleError(f"{file}: onnxruntime cannot load the graph ({str(error).splitlines()[0]})") from None
+        raise BundleError(f"{name}: onnxruntime cannot load the graph ({str(error).splitlines()[0]})") from None
+    execution.check_session(session, name)
+    return session
 
 
 def _check_session(session: ort.InferenceSession, file: str, manifest: Manifest) -> None:
@@ -85,6 +94,7 @@ class Bundle:
     mean: np.ndarray
     std: np.ndarray
     sessions: dict[str, ort.InferenceSession] = field(default_factory=dict)
+    execution: Execution = field(default_factory=Execution)
 
     @property
     def tokenizer_file(self) -> Path:
@@ -102,8 +112,12 @@ def _load_array(path: Path, manifest: Manifest) -> np.ndarray:
 
 
 def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
-                inter_op_threads: int = 1) -> Bundle:
-    """Verify the bundle at `path` and open its graphs; raises BundleError naming the first problem found."""
+                inter_op_threads: int = 1, execution: Execution | None = None) -> Bundle:
+    """Verify the bundle at `path` and open its graphs on `execution`'s providers (default: CPU); raises
+    BundleError naming the first problem found (ProviderError, naming the setting, for a provider onnxruntime
+    lacks: before any file is read)."""
+    execution = execution or Execution()
+    check_available(execution.providers)
     path = Path(path)
     raw = read_manifest_dict(path)
     _check_served_family(raw)
@@ -113,9 +127,10 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
     options = session_options(intra_op_threads, inter_op_threads)
     sessions = {}
     for file in expected_graphs(raw):
-        sessions[file] = _open_session(path / file, options)
+        sessions[file] = open_session(path / file, options, execution)
         _check_session(sessions[file], file, manifest)
     log.info("loaded bundle %s %s (%s) from %s", manifest.name, manifest.version, manifest.family, path)
     return Bundle(path=path, manifest=manifest, text_session=sessions["text_encoder.onnx"],
                   decoder_session=sessions["decoder.onnx"], mean=_load_array(path / "mean.npy", manifest),
-                  std=_load_array(path / "std.npy", manifest), sessions=sessions)
+                  std=_load_array(path / "std.npy", manifest), sessions=sessions,
+                  execution=execution)

@@ -24,6 +24,7 @@ from t2m.motion.skeleton import get_skeleton
 from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
 from t2m.service.engine.decoder import Decoder
+from t2m.service.engine.execution import Execution
 from t2m.service.engine.family_codes import FamilyCodes, ends_segments
 from t2m.service.engine.reach import DecoderReach, probe_reach
 from t2m.service.engine.requests import segment_steps
@@ -99,10 +100,11 @@ class OnnxEngine:
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
              inter_op_threads: int = 1, unknown_text: str = "warn", stream_every: int = 8,
-             exact_durations: bool = True) -> OnnxEngine:
+             exact_durations: bool = True, execution: Execution | None = None) -> OnnxEngine:
+        """`execution`: the sessions' providers and whether the step caches stay on the device (default: CPU)."""
         return cls(load_bundle(path, check_hashes=check_hashes, intra_op_threads=intra_op_threads,
-                               inter_op_threads=inter_op_threads), unknown_text=unknown_text, stream_every=stream_every,
-                   exact_durations=exact_durations)
+                               inter_op_threads=inter_op_threads, execution=execution),
+                   unknown_text=unknown_text, stream_every=stream_every, exact_durations=exact_durations)
 
     def _streaming_details(self) -> dict:
         """What /health says about streamed frames: how far the decoder looks ahead, hence when frames can go."""

@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from t2m.decoding.gpt import GptCohort, SamplingJob, sample_codes
+from t2m.service.engine.bound_step import BoundGptStep
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.requests import check_top_k, segment_steps
@@ -28,14 +29,16 @@ def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLim
 
 
 class GptCodes:
-    """Requests -> per-segment code sequences [n] with the bundle's GPT step graph."""
+    """Requests -> per-segment code sequences [n] with the bundle's GPT step graph (its cache kept on the device
+    when the bundle's execution binds: engine/bound_step.py)."""
 
     ends_segments = "its End token"
 
     def __init__(self, bundle: Bundle) -> None:
         gpt = bundle.manifest.settings  # t2m.families.gpt.GptSettings
-        self.step = OnnxGptStep(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,
-                                gpt.length_conditioning)
+        step_class = BoundGptStep if bundle.execution.binds else OnnxGptStep
+        self.step = step_class(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,
+                               gpt.length_conditioning)
         self.end_id = gpt.end_id
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:

@@ -14,6 +14,7 @@ import numpy as np
 
 from t2m.decoding.hifigpt import HiFiGPTCohort, sample_code_rows
 from t2m.decoding.lockstep import SamplingJob
+from t2m.service.engine.bound_step import BoundResidualGptStep, BoundTemporalStep
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.gpt_codes import lockstep_job
 from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
@@ -24,18 +25,22 @@ __all__ = ["HiFiGPTCodes"]
 
 
 class HiFiGPTCodes:
-    """Requests -> per-segment code maps [steps, R] with the bundle's two step graphs."""
+    """Requests -> per-segment code maps [steps, R] with the bundle's two step graphs (their caches kept on the
+    device when the bundle's execution binds: engine/bound_step.py)."""
 
     ends_segments = "its stop head"
 
     def __init__(self, bundle: Bundle) -> None:
         manifest = bundle.manifest
         block = manifest.settings  # t2m.families.hifigpt.HiFiGPTSettings
-        self.temporal = OnnxTemporalStep(bundle.sessions["temporal_step.onnx"], manifest.residual_layers,
-                                         block.n_layer_temporal, block.n_head, block.head_dim,
-                                         block.length_conditioning)
-        self.residual = OnnxResidualGptStep(bundle.sessions["residual_step.onnx"], block.n_layer_residual,
-                                            block.n_head, block.head_dim)
+        binds = bundle.execution.binds
+        temporal_class = BoundTemporalStep if binds else OnnxTemporalStep
+        residual_class = BoundResidualGptStep if binds else OnnxResidualGptStep
+        self.temporal = temporal_class(bundle.sessions["temporal_step.onnx"], manifest.residual_layers,
+                                       block.n_layer_temporal, block.n_head, block.head_dim,
+                                       block.length_conditioning)
+        self.residual = residual_class(bundle.sessions["residual_step.onnx"], block.n_layer_residual,
+                                       block.n_head, block.head_dim)
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
         return lockstep_job(request, text, limits)

@@ -3,6 +3,8 @@ family's masked.onnx and residual.onnx for its loop (t2m.decoding.masked), T2M-H
 residual_step.onnx for its loop (t2m.decoding.hifigpt)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import onnxruntime as ort
 
@@ -18,6 +20,10 @@ class KvCached:
     def empty_cache(self, batch: int) -> np.ndarray:
         return np.zeros((self.n_layer, 2, batch, self.n_head, 0, self.head_dim), dtype=np.float32)
 
+    def keep_rows(self, past: Any, keep: np.ndarray) -> Any:
+        """The cache of the rows still stepping (batch axis 2); engine/bound_step.py keeps it on the device."""
+        return past[:, :, keep]
+
 
 class OnnxGptStep(KvCached):
     """One call of gpt_step.onnx: (cond, token, position, length, past_kv) -> (logits, present_kv)."""
@@ -28,12 +34,17 @@ class OnnxGptStep(KvCached):
         self.session = session
         self.has_length_input = has_length_input
 
-    def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        feeds = {"cond": cond, "token": token, "position": np.asarray([position], dtype=np.int64), "past_kv": past}
+    def feeds(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray) -> dict[str, np.ndarray]:
+        """Every input but the cache."""
+        feeds = {"cond": cond, "token": token, "position": np.asarray([position], dtype=np.int64)}
         if self.has_length_input:
             feeds["length"] = length
-        logits, present = self.session.run(["logits", "present_kv"], feeds)
+        return feeds
+
+    def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        logits, present = self.session.run(["logits", "present_kv"],
+                                           {**self.feeds(cond, token, position, length), "past_kv": past})
         return logits, present
 
 
@@ -70,12 +81,17 @@ class OnnxTemporalStep(KvCached):
         self.session, self.depth = session, depth
         self.has_length_input = has_length_input
 
-    def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
-                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        feeds = {"cond": cond, "codes": codes, "position": np.asarray([position], dtype=np.int64), "past_kv": past}
+    def feeds(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray) -> dict[str, np.ndarray]:
+        """Every input but the cache."""
+        feeds = {"cond": cond, "codes": codes, "position": np.asarray([position], dtype=np.int64)}
         if self.has_length_input:
             feeds["length"] = length
-        context, stop, present = self.session.run(["context", "stop_logit", "present_kv"], feeds)
+        return feeds
+
+    def __call__(self, cond: np.ndarray, codes: np.ndarray, position: int, length: np.ndarray,
+                 past: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        context, stop, present = self.session.run(["context", "stop_logit", "present_kv"],
+                                                  {**self.feeds(cond, codes, position, length), "past_kv": past})
         return context, stop, present
 
 
@@ -86,8 +102,13 @@ class OnnxResidualGptStep(KvCached):
         super().__init__(n_layer, n_head, head_dim)
         self.session = session
 
+    @staticmethod
+    def feeds(context: np.ndarray, code: np.ndarray, depth: int) -> dict[str, np.ndarray]:
+        """Every input but the cache."""
+        return {"context": context, "code": code, "depth": np.asarray([depth], dtype=np.int64)}
+
     def __call__(self, context: np.ndarray, code: np.ndarray, depth: int,
                  past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        feeds = {"context": context, "code": code, "depth": np.asarray([depth], dtype=np.int64), "past_kv": past}
-        logits, present = self.session.run(["logits", "present_kv"], feeds)
+        logits, present = self.session.run(["logits", "present_kv"],
+                                           {**self.feeds(context, code, depth), "past_kv": past})
         return logits, present

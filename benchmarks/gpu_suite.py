@@ -1,0 +1,471 @@
+"""GPU suite (issue 29): every embedded model and the release sizes, onnxruntime on CUDA with the step caches kept on
+the device (I/O binding, t2m/service/engine/bound_step.py) against the PyTorch eager reference of the same loop on
+the same GPU (t2m/model/sampling: the project's own reference steps, their caches left on the device too).
+
+Both columns run the one numpy decoding loop of each family (t2m/decoding: gpt.py, hifigpt.py, masked.py), so the
+work is the same algorithm; they differ in the network calls. A "10 s motion" is one segment of 10 s (50 steps for
+the 4-frame GPT and masked models, 25 for T2M-HiFiGPT's 8 frames) with guidance (a cond and a null row each);
+"batch B" is B such motions stepped together. Decoding (decoder.onnx, on the same providers) is timed apart and added
+to both columns, which differ only in sampling. Speed depends on sizes, not values, so random weights at the
+release sizes give the releases' speed (T2M-GPT: 228M-parameter GPT, t2m/export/bench/models.py; MoMask: 8 + 8
+layers of 384, tests/export/momask_release_files.py). The embedded bundles run their own graphs (int8 step graphs
+included, as served); their PyTorch column uses random modules of the manifest's sizes (the masked model's
+transformer sizes are not in its manifest: no PyTorch column).
+
+Needs only numpy, torch, onnx, onnxruntime(-gpu) and this repository (no tokenizers, no service stack, no network):
+    PYTHONPATH=. python benchmarks/gpu_suite.py --out OUT [--device cuda|cpu] [--batches 1,16,64] [--repeats 3]
+        [--models gpt,default,masked,t2m-gpt-release,momask-release] [--tiny]
+Prints one markdown table, writes OUT/gpu_suite.json (the rows and the machine), and says what is missing (no CUDA
+in torch, no CUDAExecutionProvider in onnxruntime) instead of failing. --tiny: the release cases at toy sizes (the
+CPU test, tests/test_gpu_suite.py).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+import onnxruntime as ort  # noqa: E402
+import torch  # noqa: E402
+
+MODELS = ("gpt", "default", "masked", "t2m-gpt-release", "momask-release")
+Generate = Callable[[int], np.ndarray]      # batch -> codes ready for decoder.onnx
+
+
+@dataclass
+class Row:
+    model: str
+    batch: int
+    method: str
+    steps: int                  # network positions per motion (GPT/HiFiGPT: time steps; masked: passes)
+    ms_step: float
+    ms_generate: float
+    ms_decode: float
+
+    @property
+    def ms_motion(self) -> float:
+        """The batch's 10 s motions, sampled and decoded (the latency of each of them)."""
+        return self.ms_generate + self.ms_decode
+
+    @property
+    def motions_per_s(self) -> float:
+        return 1000 * self.batch / self.ms_motion
+
+
+@dataclass
+class Case:
+    """One model: how its two samplers are made and how its codes decode."""
+
+    label: str
+    note: str
+    steps: int
+    onnx: Callable[[Any], Generate]             # execution -> generate
+    torch: Callable[[torch.device], Generate] | None
+    decoder: Path
+    kv_cache: bool = True                       # False: whole-map passes (masked), nothing to bind
+
+
+def median_ms(fn: Callable[[], object], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return 1000 * statistics.median(times)
+
+
+def _conds(batch: int, dim: int) -> np.ndarray:
+    return np.random.default_rng(batch).normal(size=(batch, dim)).astype(np.float32)
+
+
+def gpt_generate(step: Any, dim: int, tokens: int, max_tokens: int, end_id: int) -> Generate:
+    """B one-segment jobs of `tokens` codes with guidance 3, one GptCohort: codes [B, tokens]."""
+    from t2m.decoding.gpt import GptCohort, SamplingJob
+
+    def generate(batch: int) -> np.ndarray:
+        jobs = [SamplingJob.of(cond[None], [tokens], max_tokens=max_tokens, guidance=3.0, rng=index)
+                for index, cond in enumerate(_conds(batch, dim))]
+        return np.stack([codes[0] for codes in GptCohort(step, jobs, max_tokens, end_id).run()])  # type: ignore[index]
+    return generate
+
+
+def hifigpt_generate(temporal: Any, residual: Any, dim: int, steps: int, max_tokens: int) -> Generate:
+    """B one-segment jobs of `steps` time steps with guidance 3, one HiFiGPTCohort: codes [B, steps, R]."""
+    from t2m.decoding.hifigpt import HiFiGPTCohort
+    from t2m.decoding.lockstep import SamplingJob
+
+    def generate(batch: int) -> np.ndarray:
+        jobs = [SamplingJob.of(cond[None], [steps], max_tokens=max_tokens, guidance=3.0, rng=index)
+                for index, cond in enumerate(_conds(batch, dim))]
+        result = HiFiGPTCohort(temporal, residual, jobs, max_tokens).run()
+        return np.stack([codes[0] for codes in result])  # type: ignore[index]
+    return generate
+
+
+def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int) -> Generate:
+    """B one-segment jobs of `rows` token rows, `passes` mask steps, MoMask's guidance: maps [B, rows, C, R]."""
+    from t2m.decoding.masked import MaskedJob, sample_token_maps
+
+    def generate(batch: int) -> np.ndarray:
+        jobs = [MaskedJob(conds=cond[None], rows=[rows], rng=np.random.default_rng(index), steps=passes)
+                for index, cond in enumerate(_conds(batch, dim))]
+        return np.stack([maps[0] for maps in sample_token_maps(masked, residual, jobs)])  # type: ignore[index]
+    return generate
+
+
+def session(path: Path, execution: Any) -> ort.InferenceSession:
+    from t2m.service.engine.bundle import open_session, session_options
+
+    return open_session(path, session_options(0, 1), execution)
+
+
+def onnx_gpt(step_path: Path, n_layer: int, n_head: int, head_dim: int, length: bool, dim: int, tokens: int,
+             max_tokens: int, end_id: int) -> Callable[[Any], Generate]:
+    def make(execution: Any) -> Generate:
+        from t2m.service.engine.bound_step import BoundGptStep
+        from t2m.service.engine.onnx_step import OnnxGptStep
+
+        kind = BoundGptStep if execution.binds else OnnxGptStep
+        step = kind(session(step_path, execution), n_layer, n_head, head_dim, length)
+        return gpt_generate(step, dim, tokens, max_tokens, end_id)
+    return make
+
+
+def torch_gpt(config: Any, dim: int, tokens: int) -> Callable[[torch.device], Generate]:
+    def make(device: torch.device) -> Generate:
+        from t2m.model.networks.gpt import MotionGPT
+        from t2m.model.sampling.gpt import TorchGptStep
+
+        torch.manual_seed(0)
+        gpt = MotionGPT(config).to(device).eval()
+        return gpt_generate(TorchGptStep(gpt, device), dim, tokens, config.max_tokens, config.end_id)
+    return make
+
+
+def embedded_gpt_case() -> Case:
+    from t2m.bundles import GPT_BUNDLE
+    from t2m.export.bench.models import gpt_sizes
+
+    manifest = json.loads((GPT_BUNDLE / "manifest.json").read_text())
+    g, dim = manifest["gpt"], manifest["text_encoder"]["dim"]
+    config, _, _ = gpt_sizes()
+    return Case("gpt (t2m/bundles/gpt)", f"{manifest['name']}: {g['n_layer']} layers x "
+                f"{g['n_head'] * g['head_dim']}", 50,
+                onnx_gpt(GPT_BUNDLE / "gpt_step.onnx", g["n_layer"], g["n_head"], g["head_dim"],
+                         g["length_conditioning"], dim, 50, manifest["max_tokens"], manifest["end_id"]),
+                torch_gpt(config, dim, 50), GPT_BUNDLE / "decoder.onnx")
+
+
+def embedded_hifigpt_case() -> Case:
+    from t2m.bundles import DEFAULT_BUNDLE
+    from t2m.model.networks.hifigpt import HiFiGPTConfig
+
+    manifest = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())
+    h, dim, depth, steps = manifest["hifigpt"], manifest["text_encoder"]["dim"], manifest["residual_layers"], 25
+
+    def make_onnx(execution: Any) -> Generate:
+        from t2m.service.engine.bound_step import BoundResidualGptStep, BoundTemporalStep
+        from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
+
+        temporal_kind = BoundTemporalStep if execution.binds else OnnxTemporalStep
+        residual_kind = BoundResidualGptStep if execution.binds else OnnxResidualGptStep
+        temporal = temporal_kind(session(DEFAULT_BUNDLE / "temporal_step.onnx", execution), depth,
+                                 h["n_layer_temporal"], h["n_head"], h["head_dim"], h["length_conditioning"])
+        residual = residual_kind(session(DEFAULT_BUNDLE / "residual_step.onnx", execution), h["n_layer_residual"],
+                                 h["n_head"], h["head_dim"])
+        return hifigpt_generate(temporal, residual, dim, steps, manifest["max_tokens"])
+
+    def make_torch(device: torch.device) -> Generate:
+        from t2m.model.networks.hifigpt import HiFiGPT
+        from t2m.model.sampling.hifigpt import TorchResidualGptStep, TorchTemporalStep
+
+        torch.manual_seed(0)
+        config = HiFiGPTConfig(codebook_size=manifest["codebook_size"], depth=depth, embed=h["n_head"] * h["head_dim"],
+                               n_head=h["n_head"], n_layer_temporal=h["n_layer_temporal"],
+                               n_layer_residual=h["n_layer_residual"], max_tokens=manifest["max_tokens"],
+                               text_dim=dim, dropout=0.0, length_conditioning=h["length_conditioning"])
+        model = HiFiGPT(config).to(device).eval()
+        return hifigpt_generate(TorchTemporalStep(model, device), TorchResidualGptStep(model, device), dim, steps,
+                                config.max_tokens)
+
+    quantized = ", ".join(sorted({v for v in manifest.get("quantization", {}).values() if v})) or "float32"
+    return Case("default (t2m/bundles/default, T2M-HiFiGPT)", f"{manifest['name']}: step graphs {quantized}; "
+                f"{steps} steps x (1 temporal + {depth} residual calls)", steps, make_onnx, make_torch,
+                DEFAULT_BUNDLE / "decoder.onnx")
+
+
+def onnx_masked(masked_path: Path, residual_path: Path | None, columns: int, mask_id: int, layers: int, pad_id: int,
+                dim: int, rows: int, passes: int) -> Callable[[Any], Generate]:
+    def make(execution: Any) -> Generate:
+        from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+
+        masked = OnnxMaskedStep(session(masked_path, execution), columns, mask_id)
+        residual = None if residual_path is None else OnnxResidualStep(session(residual_path, execution), layers,
+                                                                         pad_id)
+        return masked_generate(masked, residual, dim, rows, passes)
+    return make
+
+
+def embedded_masked_case() -> Case:
+    from t2m.bundles import EMBEDDED_BUNDLES
+
+    MASKED_BUNDLE = EMBEDDED_BUNDLES["masked"]
+    manifest = json.loads((MASKED_BUNDLE / "manifest.json").read_text())
+    m, layers = manifest["masked"], manifest["residual_layers"]
+    return Case("masked (t2m/bundles/masked)", f"{manifest['name']}: {m['steps']} mask passes + {layers - 1} "
+                "residual passes; no PyTorch column (transformer sizes not in the manifest)", m["steps"] + layers - 1,
+                onnx_masked(MASKED_BUNDLE / "masked.onnx", MASKED_BUNDLE / "residual.onnx" if layers > 1 else None,
+                            m["columns"], m["mask_id"], layers, m["pad_id"], manifest["text_encoder"]["dim"], 50,
+                            m["steps"]),
+                None, MASKED_BUNDLE / "decoder.onnx", kv_cache=False)
+
+
+def release_gpt_case(workdir: Path, tiny: bool) -> Case:
+    """T2M-GPT's release sizes (random weights), exported with the project's exporters."""
+    from t2m.export.bench.models import RELEASE_GPT, RELEASE_VQ
+    from t2m.export.graphs.decoder import export_decoder
+    from t2m.export.graphs.gpt import export_gpt_step
+    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+
+    config = (GPTConfig(codebook_size=64, embed=64, n_head=4, n_layer_base=1, n_layer_head=1, block_size=51,
+                        dropout=0.0, text_dim=512, length_conditioning=False) if tiny else RELEASE_GPT)
+    vq = VQConfig(width=32, code_dim=32, nb_code=64) if tiny else RELEASE_VQ
+    step_path, decoder_path = workdir / "t2m_gpt_step.onnx", workdir / "t2m_gpt_decoder.onnx"
+    torch.manual_seed(0)
+    gpt = MotionGPT(config).eval()
+    export_gpt_step(gpt, step_path)
+    export_decoder(MotionVQVAE(vq).eval(), np.zeros(vq.feat_dim, np.float32), np.ones(vq.feat_dim, np.float32),
+                   decoder_path)
+    params = sum(p.numel() for p in gpt.parameters()) / 1e6
+    dim = config.text_dim
+    return Case("t2m-gpt-release" + (" (--tiny)" if tiny else ""), f"random weights, GPT {config.n_layer} layers x "
+                f"{config.embed}, {params:.0f}M parameters", 50,
+                onnx_gpt(step_path, config.n_layer, config.n_head, config.head_dim, config.length_conditioning, dim,
+                         50, config.max_tokens, config.end_id),
+                torch_gpt(config, dim, 50), decoder_path)
+
+
+def release_momask_case(workdir: Path, tiny: bool) -> Case:
+    """MoMask's release sizes (random weights): the masked and residual transformers and the RVQ decoder."""
+    from t2m.export.graphs.masked import export_joint_decoder, export_masked, export_residual
+    from t2m.model.networks.masked_transformer import MaskedTransformer
+    from t2m.model.networks.residual_transformer import ResidualTransformer
+    from t2m.model.networks.token_transformer import TokenTransformerConfig
+    from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
+
+    size = {"latent": 48, "n_head": 6, "n_layer": 1, "ff_size": 64, "codebook": 64, "width": 32} if tiny else \
+        {"latent": 384, "n_head": 6, "n_layer": 8, "ff_size": 1024, "codebook": 512, "width": 512}
+    layers, rows, passes, dim = 6, 49, 10, 512
+    config = TokenTransformerConfig(codebook_size=size["codebook"], columns=1, residual_layers=layers,
+                                    max_tokens=rows, latent=size["latent"], n_head=size["n_head"],
+                                    n_layer=size["n_layer"], ff_size=size["ff_size"], dropout=0.0, text_dim=dim,
+                                    code_dim=size["width"], positional="1d", spatial_attention=False,
+                                    temporal_attention=False)
+    torch.manual_seed(0)
+    masked, residual = MaskedTransformer(config).eval(), ResidualTransformer(config).eval()
+    vq = MotionVQVAE(VQConfig(width=size["width"], code_dim=size["width"], nb_code=size["codebook"],
+                              quantizer="residual", residual_layers=layers)).eval()
+    paths = {name: workdir / f"momask_{name}.onnx" for name in ("masked", "residual", "decoder")}
+    export_masked(masked, paths["masked"])
+    export_residual(residual, paths["residual"])
+    export_joint_decoder(vq, np.zeros(vq.config.feat_dim, np.float32), np.ones(vq.config.feat_dim, np.float32),
+                         paths["decoder"])
+
+    def make_torch(device: torch.device) -> Generate:
+        from t2m.model.sampling.masked import TorchMaskedStep, TorchResidualStep
+
+        return masked_generate(TorchMaskedStep(masked.to(device), device),
+                               TorchResidualStep(residual.to(device), device), dim, rows, passes)
+
+    params = sum(p.numel() for p in [*masked.parameters(), *residual.parameters()]) / 1e6
+    return Case("momask-release" + (" (--tiny)" if tiny else ""), f"random weights, masked + residual transformers "
+                f"{config.n_layer} layers x {config.latent} ({params:.0f}M parameters), {rows} rows (196 frames), "
+                f"{passes} mask passes + {layers - 1} residual passes", passes + layers - 1,
+                onnx_masked(paths["masked"], paths["residual"], 1, masked.config.mask_id, layers, residual.pad_id,
+                            dim, rows, passes),
+                make_torch, paths["decoder"], kv_cache=False)
+
+
+def what_is_missing(device: str) -> tuple[bool, bool, list[str]]:
+    """(onnxruntime can run on the device, torch can, the missing pieces in words)."""
+    missing = []
+    ort_ok = device == "cpu" or "CUDAExecutionProvider" in ort.get_available_providers()
+    torch_ok = device == "cpu" or torch.cuda.is_available()
+    if not ort_ok:
+        missing.append(f"onnxruntime {ort.__version__} has no CUDAExecutionProvider (available: "
+                       f"{', '.join(ort.get_available_providers())}): install onnxruntime-gpu; no onnxruntime column")
+    if not torch_ok:
+        missing.append(f"torch {torch.__version__} sees no CUDA device: no PyTorch column")
+    return ort_ok, torch_ok, missing
+
+
+def load_cuda_libraries() -> None:
+    """Load CUDA, cuBLAS and cuDNN into the process through torch (the nvidia-* wheels it brought), so that
+    onnxruntime-gpu's CUDA provider finds them by name; then onnxruntime's own preload where it has one."""
+    x = torch.ones(1, 4, 8, device="cuda")
+    torch.nn.functional.conv1d(x, torch.ones(4, 4, 3, device="cuda")).sum().item()
+    (x[0] @ x[0].T).sum().item()
+    if hasattr(ort, "preload_dlls"):
+        try:
+            ort.preload_dlls()
+        except Exception as error:  # pragma: no cover - only where those libraries are broken
+            print(f"onnxruntime.preload_dlls(): {error}", file=sys.stderr)
+
+
+def decode_ms(decoder: Any, codes: np.ndarray, repeats: int) -> float:
+    decoder.run(None, {"codes": codes})
+    return median_ms(lambda: decoder.run(None, {"codes": codes}), repeats)
+
+
+def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok: bool, torch_ok: bool,
+               failures: list[str]) -> list[Row]:
+    """The case's rows; a method that cannot be built or run is reported in `failures`, the others go on."""
+    from t2m.service.engine.execution import Execution
+
+    providers = ("cuda",) if device == "cuda" else ("cpu",)
+    makers: dict[str, Callable[[], Generate]] = {}
+    if ort_ok and case.kv_cache:
+        makers[f"onnxruntime {device}, I/O binding"] = lambda: case.onnx(Execution(providers, io_binding="on"))
+        makers[f"onnxruntime {device}, numpy caches"] = lambda: case.onnx(Execution(providers, io_binding="off"))
+    elif ort_ok:
+        makers[f"onnxruntime {device}"] = lambda: case.onnx(Execution(providers))
+    if torch_ok and case.torch is not None:
+        makers[f"PyTorch eager {device}"] = lambda: case.torch(torch.device(device))  # type: ignore[misc]
+    decoder = attempt(failures, f"{case.label} decoder.onnx", lambda: session(case.decoder, Execution(providers)))
+    samplers = {method: attempt(failures, f"{case.label} {method}", make) for method, make in makers.items()}
+    sync = torch.cuda.synchronize if device == "cuda" and torch_ok else (lambda: None)
+    rows = []
+    for batch in batches:
+        for method, generate in samplers.items():
+            if generate is None:
+                continue
+
+            def timed(generate: Generate = generate, batch: int = batch) -> np.ndarray:
+                codes = generate(batch)
+                sync()
+                return codes
+
+            def one_row(method: str = method, timed: Callable[[], np.ndarray] = timed, batch: int = batch) -> Row:
+                codes = timed()                     # warm-up: allocations, kernels, cuDNN/cuBLAS choices
+                ms_generate = median_ms(timed, repeats)
+                ms_decode = decode_ms(decoder, codes, repeats) if decoder is not None else float("nan")
+                return Row(case.label, batch, method, case.steps, ms_generate / case.steps, ms_generate, ms_decode)
+
+            row = attempt(failures, f"{case.label} batch {batch} {method}", one_row)
+            if row is not None:
+                rows.append(row)
+                print(f"  {case.label} batch {batch} {method}: {row.ms_generate:.0f} ms", file=sys.stderr,
+                      flush=True)
+    return rows
+
+
+def attempt(failures: list[str], what: str, fn: Callable[[], Any]) -> Any:
+    """fn(), or None with the failure noted in one line (one method's failure must not lose the other rows)."""
+    try:
+        return fn()
+    except Exception as error:
+        failures.append(f"- {what}: failed: {type(error).__name__}: {str(error).splitlines()[0][:300]}")
+        print(failures[-1], file=sys.stderr, flush=True)
+        return None
+
+
+def table(rows: list[Row]) -> list[str]:
+    lines = ["| model | batch | method | steps | ms / step | ms generate | ms decode | ms per 10 s motion | "
+             "motions / s | vs PyTorch |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for row in rows:
+        torch_row = next((r for r in rows if r.model == row.model and r.batch == row.batch
+                          and r.method.startswith("PyTorch")), None)
+        ratio = f"{torch_row.ms_motion / row.ms_motion:.2f}x" if torch_row is not None else "-"
+        lines.append(f"| {row.model} | {row.batch} | {row.method} | {row.steps} | {row.ms_step:.2f} | "
+                     f"{row.ms_generate:.1f} | {row.ms_decode:.1f} | {row.ms_motion:.1f} | {row.motions_per_s:.1f} | "
+                     f"{ratio} |")
+    return lines
+
+
+def machine(device: str) -> dict[str, Any]:
+    info: dict[str, Any] = {"python": platform.python_version(), "platform": platform.platform(),
+                            "torch": torch.__version__, "onnxruntime": ort.__version__,
+                            "ort_providers": ort.get_available_providers(), "device": device}
+    if torch.cuda.is_available():
+        info["gpu"] = torch.cuda.get_device_name(0)
+        info["torch_cuda"] = torch.version.cuda
+    return info
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True, help="folder for gpu_suite.json")
+    parser.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
+    parser.add_argument("--batches", default="1,16,64", help="comma-separated motions per batch (default 1,16,64)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per row, median reported (default 3)")
+    parser.add_argument("--models", default=",".join(MODELS), help=f"comma-separated subset of {', '.join(MODELS)}")
+    parser.add_argument("--tiny", action="store_true", help="release cases at toy sizes (tests on CPU)")
+    args = parser.parse_args(argv)
+    args.batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    args.models = [m.strip() for m in args.models.split(",") if m.strip()]
+    unknown = [m for m in args.models if m not in MODELS]
+    if unknown or args.repeats < 1 or not args.batches or min(args.batches) < 1:
+        parser.error(f"--models from {', '.join(MODELS)} (unknown: {unknown}); --repeats and --batches >= 1")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    ort_ok, torch_ok, missing = what_is_missing(args.device)
+    if args.device == "cuda" and torch_ok:
+        load_cuda_libraries()
+    for line in missing:
+        print(f"missing: {line}")
+    if not (ort_ok or torch_ok):
+        print("nothing can run on this device; no table")
+        return 3
+    torch.set_grad_enabled(False)
+    started = time.perf_counter()
+    rows: list[Row] = []
+    notes: list[str] = []
+    failures: list[str] = []
+    with tempfile.TemporaryDirectory(prefix="gpu-suite-") as temporary:
+        workdir = Path(temporary)
+        builders: dict[str, Callable[[], Case]] = {
+            "gpt": embedded_gpt_case, "default": embedded_hifigpt_case, "masked": embedded_masked_case,
+            "t2m-gpt-release": lambda: release_gpt_case(workdir, args.tiny),
+            "momask-release": lambda: release_momask_case(workdir, args.tiny)}
+        for name in args.models:
+            built = time.perf_counter()
+            case = attempt(failures, name, builders[name])
+            if case is not None:
+                notes.append(f"- {case.label}: {case.note} (built in {time.perf_counter() - built:.0f} s)")
+                rows += bench_case(case, args.device, args.batches, args.repeats, ort_ok, torch_ok, failures)
+    info = machine(args.device)
+    print(f"## GPU suite ({args.device}; {info.get('gpu', platform.processor() or 'cpu')}; torch {torch.__version__}; "
+          f"onnxruntime {ort.__version__})\n")
+    print("\n".join(table(rows)))
+    print("\n" + "\n".join(notes + failures + [
+        f"- batch B = B motions of 10 s with guidance (2B rows); median of {args.repeats} run(s) after a warm-up; "
+        "ms per 10 s motion = the batch's generate + decode; motions / s = B / that; vs PyTorch = the PyTorch "
+        "row's ms per 10 s motion / this row's", f"- whole run {time.perf_counter() - started:.0f} s"]))
+    args.out.mkdir(parents=True, exist_ok=True)
+    record = {"machine": info, "missing": missing, "failures": failures, "notes": notes,
+              "rows": [{**asdict(row), "ms_motion": row.ms_motion, "motions_per_s": row.motions_per_s}
+                       for row in rows]}
+    (args.out / "gpu_suite.json").write_text(json.dumps(record, indent=2))
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
