@@ -19,7 +19,7 @@ from t2m.motion.features import normalize_joints
 from t2m.motion.skeleton import SMPL22
 from t2m.motion.transforms import resample
 
-__all__ = ["BANDAI_NAMCO", "JointMap", "bvh_to_smpl22", "map_positions"]
+__all__ = ["BANDAI_NAMCO", "CC_RIG", "JointMap", "bvh_to_smpl22", "clean_fps", "map_positions"]
 
 # One entry per target joint: a source joint name, or {source name: weight} for a synthesised joint.
 TargetSpec: TypeAlias = str | Mapping[str, float]
@@ -109,6 +109,37 @@ BANDAI_NAMCO = JointMap.from_targets("bandai-namco", [
 ], units_to_metres=0.01)
 
 
+# Reallusion Character Creator's rig (the CMU conversions of IClone-CMU-Mocap): root `RL_BoneRoot` on the floor,
+# body root `CC_Base_Hip`, about 100 joints with twist, finger, toe and face bones, centimetres. Heights above the
+# hip in its rest pose: Waist 8 cm, Spine01 12, Spine02 27, Clavicles 47, NeckTwist01 54, Head 62; SMPL's spine1,
+# spine2, spine3, neck and head sit 13, 28, 33, 55 and 65 cm above its pelvis, so spine3 is put a quarter of the
+# way from Spine02 to the neck. `_L` is the character's own left (at +x when the body faces +z, checked on 02_01).
+CC_RIG = JointMap.from_targets("cc-rig", [
+    ("pelvis", "CC_Base_Hip"),
+    ("left_hip", "CC_Base_L_Thigh"),
+    ("right_hip", "CC_Base_R_Thigh"),
+    ("spine1", "CC_Base_Spine01"),
+    ("left_knee", "CC_Base_L_Calf"),
+    ("right_knee", "CC_Base_R_Calf"),
+    ("spine2", "CC_Base_Spine02"),
+    ("left_ankle", "CC_Base_L_Foot"),
+    ("right_ankle", "CC_Base_R_Foot"),
+    ("spine3", {"CC_Base_Spine02": 0.75, "CC_Base_NeckTwist01": 0.25}),
+    ("left_foot", "CC_Base_L_ToeBase"),
+    ("right_foot", "CC_Base_R_ToeBase"),
+    ("neck", "CC_Base_NeckTwist01"),
+    ("left_collar", "CC_Base_L_Clavicle"),
+    ("right_collar", "CC_Base_R_Clavicle"),
+    ("head", "CC_Base_Head"),
+    ("left_shoulder", "CC_Base_L_Upperarm"),
+    ("right_shoulder", "CC_Base_R_Upperarm"),
+    ("left_elbow", "CC_Base_L_Forearm"),
+    ("right_elbow", "CC_Base_R_Forearm"),
+    ("left_wrist", "CC_Base_L_Hand"),
+    ("right_wrist", "CC_Base_R_Hand"),
+], units_to_metres=0.01)
+
+
 def map_positions(bvh: BvhMotion, joint_map: JointMap = BANDAI_NAMCO) -> np.ndarray:
     """World positions of the target joints [T, targets, 3] in metres, at the file's frame rate (not normalised)."""
     positions = bvh.forward_kinematics()
@@ -116,7 +147,7 @@ def map_positions(bvh: BvhMotion, joint_map: JointMap = BANDAI_NAMCO) -> np.ndar
     return mapped * joint_map.units_to_metres
 
 
-def _clean_fps(fps: float) -> float:
+def clean_fps(fps: float) -> float:
     """BVH frame times are printed rounded (0.0333333); snap to the whole rate they stand for."""
     return float(round(fps)) if abs(fps - round(fps)) < 1e-3 else fps
 
@@ -129,7 +160,7 @@ def bvh_to_smpl22(bvh: BvhMotion, joint_map: JointMap = BANDAI_NAMCO, target_fps
     if bvh.num_frames < 2:
         raise ValueError(f"BVH has {bvh.num_frames} frame(s); a motion needs at least 2")
     joints = map_positions(bvh, joint_map)
-    source_fps = _clean_fps(bvh.fps)
+    source_fps = clean_fps(bvh.fps)
     if source_fps != target_fps:
         joints = resample(joints, source_fps, target_fps)
     return np.asarray(normalize_joints(joints, SMPL22), dtype=np.float32)

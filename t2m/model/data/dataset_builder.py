@@ -59,6 +59,9 @@ __all__ = [
     "feature_statistics",
     "find_clips",
     "open_source",
+    "prepare_output",
+    "write_clip",
+    "write_texts_and_splits",
 ]
 
 log = logging.getLogger("t2m.data")
@@ -216,12 +219,17 @@ def _pieces(num_frames: int, max_frames: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in pairwise(bounds)]
 
 
-def _save_item(out: Path, item_id: str, joints: np.ndarray) -> int:
-    features = joints_to_features(joints, SMPL22)
+def write_clip(out: Path, item_id: str, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Save a normalised clip's features and the joints recovered from them (HumanML3D's new_joints); return both."""
+    features = joints_to_features(joints, SMPL22).astype(np.float32)
     recovered = features_to_joints(features, SMPL22).astype(np.float32)
-    np.save(out / "new_joint_vecs" / f"{item_id}.npy", features.astype(np.float32))
+    np.save(out / "new_joint_vecs" / f"{item_id}.npy", features)
     np.save(out / "new_joints" / f"{item_id}.npy", recovered)
-    return int(features.shape[0])
+    return features, recovered
+
+
+def _save_item(out: Path, item_id: str, joints: np.ndarray) -> int:
+    return int(write_clip(out, item_id, joints)[0].shape[0])
 
 
 # --- checking left/right against the motion ------------------------------------------------------------------------
@@ -334,7 +342,8 @@ def feature_statistics(features: Iterable[np.ndarray], num_joints: int = 22) -> 
 
 
 # --- the build -----------------------------------------------------------------------------------------------------
-def _prepare_output(out: Path, overwrite: bool) -> None:
+def prepare_output(out: Path, overwrite: bool) -> None:
+    """Refuse to overwrite a dataset unless asked; make the layout's folders."""
     existing = [name for name in LAYOUT_ITEMS if (out / name).exists()]
     if existing and not overwrite:
         raise ValueError(f"--out {out} already holds a dataset ({', '.join(existing[:3])}...); "
@@ -344,6 +353,19 @@ def _prepare_output(out: Path, overwrite: bool) -> None:
         shutil.rmtree(target) if target.is_dir() else target.unlink()
     for sub in ("new_joints", "new_joint_vecs", "texts"):
         (out / sub).mkdir(parents=True, exist_ok=True)
+
+
+def write_texts_and_splits(out: Path, captions: dict[str, list[str]], splits: dict[str, list[str]]) -> None:
+    """texts/<id>.txt (HumanML3D's caption lines), <split>.txt and all.txt, then Mean/Std over the train split."""
+    for item_id, lines in sorted(captions.items()):
+        text = "\n".join(format_caption_line(c) for c in lines) + "\n"
+        (out / "texts" / f"{item_id}.txt").write_text(text, encoding="utf-8")
+    for split, ids in splits.items():
+        (out / f"{split}.txt").write_text("".join(f"{i}\n" for i in sorted(ids)), encoding="utf-8")
+    (out / "all.txt").write_text("".join(f"{i}\n" for i in sorted(captions)), encoding="utf-8")
+    mean, std = feature_statistics(np.load(out / "new_joint_vecs" / f"{i}.npy") for i in sorted(splits["train"]))
+    np.save(out / "Mean.npy", mean)
+    np.save(out / "Std.npy", std)
 
 
 def _split_summary(items: dict[str, list[tuple[str, int]]], captions: dict[str, list[str]],
@@ -365,7 +387,7 @@ def build_dataset(source: str | os.PathLike, out: str | os.PathLike, options: Bu
         raise ValueError(f"--workers must be at least 1, got {options.workers}")
     out = Path(out)
     started = time.time()
-    _prepare_output(out, options.overwrite)
+    prepare_output(out, options.overwrite)
     handler = logging.FileHandler(out / "build.log", mode="w", encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     log.addHandler(handler)
@@ -420,17 +442,7 @@ def _build(root: Path, out: Path, options: BuildOptions, source_name: str) -> di
     if not captions:
         raise ValueError(f"no usable clips in {source_name} ({len(skipped)} skipped)")
 
-    for item_id, lines in sorted(captions.items()):
-        text = "\n".join(format_caption_line(c) for c in lines) + "\n"
-        (out / "texts" / f"{item_id}.txt").write_text(text, encoding="utf-8")
-    for split, rows in items.items():
-        (out / f"{split}.txt").write_text("".join(f"{i}\n" for i, _ in sorted(rows)), encoding="utf-8")
-    (out / "all.txt").write_text("".join(f"{i}\n" for i in sorted(captions)), encoding="utf-8")
-
-    train_ids = sorted(i for i, _ in items["train"])
-    mean, std = feature_statistics(np.load(out / "new_joint_vecs" / f"{i}.npy") for i in train_ids)
-    np.save(out / "Mean.npy", mean)
-    np.save(out / "Std.npy", std)
+    write_texts_and_splits(out, captions, {split: [i for i, _ in rows] for split, rows in items.items()})
 
     per_split = _split_summary(items, captions, clips_per_split)
     total_frames = sum(s["frames"] for s in per_split.values())
