@@ -122,6 +122,7 @@ class ModelFamily:
         """`t2m export --family NAME`'s own options (their dests must not collide with another family's)."""
 
     int8_graphs: ClassVar[frozenset[str]] = frozenset()               # what `t2m export --int8` may name
+    export_needs_vq: ClassVar[bool] = False                           # `t2m export` refuses it without --vq RUN
 
     def export(self, args: argparse.Namespace, int8: Any) -> tuple[dict, dict]:
         """Run `t2m export --family NAME`: (written manifest, checks) or raise ValueError naming what is wrong."""

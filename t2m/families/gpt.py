@@ -55,6 +55,7 @@ class GptFamily(ModelFamily):
         "gpt": ("t2m.model.training.train_gpt", "train the text-to-code GPT on a trained VQ's codes")}
     eval_run_option = "gpt"
     evaluates_bundle = True
+    export_needs_vq = True
     int8_graphs = frozenset({"text", "gpt"})
 
     def field_table(self, common: Mapping[str, FieldRule]) -> dict[str, FieldRule]:
@@ -128,8 +129,6 @@ class GptFamily(ModelFamily):
                            help="family gpt: local CLIP ViT-B/32 weights")
 
     def check_export_arguments(self, args: argparse.Namespace) -> None:
-        if args.vq is None:
-            raise ValueError("--vq RUN is required")
         if args.gpt is None:
             raise ValueError("--gpt RUN is required (or --family masked with --masked RUN, --family hifigpt with "
                              "--hifigpt RUN)")

@@ -61,6 +61,7 @@ class HiFiGPTFamily(ModelFamily):
         "hifigpt": ("t2m.model.networks.hifigpt", "HiFiGPT", "HiFiGPTConfig")}
     eval_run_option = "hifigpt"
     evaluates_bundle = True
+    export_needs_vq = True
     int8_graphs = frozenset({"text", "temporal", "residual"})
 
     def check_consistency(self, manifest: Mapping[str, Any]) -> None:
@@ -116,8 +117,6 @@ class HiFiGPTFamily(ModelFamily):
                            help="HiFiGPT run directory (family hifigpt; --vq is its residual VQ)")
 
     def check_export_arguments(self, args: argparse.Namespace) -> None:
-        if args.vq is None:
-            raise ValueError("--vq RUN is required")
         if args.hifigpt is None:
             raise ValueError("--family hifigpt needs --hifigpt RUN")
 

@@ -184,6 +184,7 @@ class MaskedFamily(ModelFamily):
     }
     eval_run_option = "masked"
     default_eval_guidance = (1.0, 4.0)
+    export_needs_vq = True
     int8_graphs = frozenset({"text", "masked", "residual"})
 
     def check_consistency(self, manifest: Mapping[str, Any]) -> None:
@@ -269,8 +270,6 @@ class MaskedFamily(ModelFamily):
                            help="family masked: the residual stage's top-k (default: all codes)")
 
     def check_export_arguments(self, args: argparse.Namespace) -> None:
-        if args.vq is None:
-            raise ValueError("--vq RUN is required")
         if args.masked is None:
             raise ValueError("--family masked needs --masked RUN")
         if args.steps is not None and args.steps < 1:

@@ -72,6 +72,8 @@ def _check_family_arguments(args: argparse.Namespace, family: ModelFamily) -> fr
     if args.int8 not in ("none", "all") and (not graphs or not graphs <= allowed):
         raise CliError(f"--int8 {args.int8}: give none, all, or some of {', '.join(sorted(allowed))} "
                        f"(comma-separated) for --family {family.name}")
+    if family.export_needs_vq and args.vq is None:
+        raise CliError("--vq RUN is required")
     if args.guidance is not None and args.guidance < 0:
         raise CliError(f"--guidance must be >= 0, got {args.guidance}")
     try:

@@ -36,7 +36,7 @@ import numpy as np
 from t2m.model.data.captions import mirror_caption
 from t2m.model.data.clip_checks import CHECK_LIMITS, ClipChecks, check_clip
 from t2m.model.data.cmu_source import CaptionedSegment, CmuTrial, open_cmu_source, read_form, read_index
-from t2m.model.data.dataset_builder import STD_FLOOR, prepare_output, write_clip, write_texts_and_splits
+from t2m.model.data.dataset_builder import STD_FLOOR, build_log, prepare_output, write_clip, write_texts_and_splits
 from t2m.motion.constants import FPS
 from t2m.motion.features import feature_dim, features_to_joints, joints_to_features, normalize_joints
 from t2m.motion.skeleton import SMPL22
@@ -223,11 +223,7 @@ def build_cmu_dataset(source: str | os.PathLike, out: str | os.PathLike,
         return {**existing, "cached": True}
     started = time.time()
     prepare_output(out, options.overwrite)
-    handler = logging.FileHandler(out / "build.log", mode="w", encoding="utf-8")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
-    log.addHandler(handler)
-    log.setLevel(logging.INFO)
-    try:
+    with build_log(out):
         root, temporary = open_cmu_source(source, workdir=out)
         try:
             summary = _build(root, read_index(index), out, options)
@@ -238,9 +234,6 @@ def build_cmu_dataset(source: str | os.PathLike, out: str | os.PathLike,
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
         log.info("built %s in %.1f s", out, time.time() - started)
         return summary
-    finally:
-        log.removeHandler(handler)
-        handler.close()
 
 
 def _build(root: Path, trials: list[CmuTrial], out: Path, options: CmuBuildOptions) -> dict:

@@ -35,7 +35,8 @@ import shutil
 import tarfile
 import tempfile
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from itertools import pairwise
 from pathlib import Path
@@ -388,11 +389,7 @@ def build_dataset(source: str | os.PathLike, out: str | os.PathLike, options: Bu
     out = Path(out)
     started = time.time()
     prepare_output(out, options.overwrite)
-    handler = logging.FileHandler(out / "build.log", mode="w", encoding="utf-8")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
-    log.addHandler(handler)
-    log.setLevel(logging.INFO)
-    try:
+    with build_log(out):
         root, temporary = open_source(source, workdir=out)
         try:
             summary = _build(root, out, options, str(source))
@@ -401,6 +398,17 @@ def build_dataset(source: str | os.PathLike, out: str | os.PathLike, options: Bu
                 shutil.rmtree(temporary, ignore_errors=True)
         log.info("built %s in %.1f s", out, time.time() - started)
         return summary
+
+
+@contextmanager
+def build_log(out: Path) -> Iterator[None]:
+    """Every builder's log lines also go to out/build.log while it builds (kept beside the data it describes)."""
+    handler = logging.FileHandler(out / "build.log", mode="w", encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    try:
+        yield
     finally:
         log.removeHandler(handler)
         handler.close()
