@@ -18,17 +18,22 @@ from t2m.bundle.errors import BundleError
 from t2m.bundle.family import FieldRule, ModelFamily, family_names, get_family
 
 __all__ = [
+    "BOOL",
     "CAPTION_INDEX_FILE",
     "COMMON_FIELDS",
     "COMMON_FILES",
     "COMMON_OPTIONAL_FIELDS",
     "FORMAT_VERSION",
+    "GUIDANCE",
+    "INTEGER_ABOVE_1",
     "LENGTH_GRAPH",
     "MANIFEST_NAME",
     "OPTIONAL_FILES",
     "POSITIVE",
+    "QUANTIZATION",
     "CaptionIndexInfo",
     "Manifest",
+    "check_block_size",
     "check_fields",
     "check_manifest_fields",
     "family_of",
@@ -85,6 +90,11 @@ def is_optional_positive(value: Any) -> bool:
 
 Check = Callable[[Any], bool]
 POSITIVE: FieldRule = (is_positive_int, "a positive integer")
+# rules the families' blocks share
+BOOL: FieldRule = (is_bool, "true or false")
+GUIDANCE: FieldRule = (lambda v: is_number(v) and v >= 0, "a number >= 0")
+INTEGER_ABOVE_1: FieldRule = (lambda v: is_int(v) and v > 1, "an integer > 1")
+QUANTIZATION: FieldRule = (is_optional_str, "null or a string such as 'int8-dynamic'")
 # field path -> (check, what it must be); every field is required, for every family
 COMMON_FIELDS: dict[str, FieldRule] = {
     "format_version": (lambda v: v == FORMAT_VERSION, f"the integer {FORMAT_VERSION}"),
@@ -100,15 +110,15 @@ COMMON_FIELDS: dict[str, FieldRule] = {
     "residual_layers": POSITIVE,
     "text_encoder.kind": (is_str, "a string such as 'minilm' or 'clip'"),
     "text_encoder.dim": POSITIVE,
-    "text_encoder.max_length": (lambda v: is_int(v) and v > 1, "an integer > 1"),
+    "text_encoder.max_length": INTEGER_ABOVE_1,
     "text_encoder.pooling": (is_str, "a string such as 'mean' or 'eot'"),
-    "text_encoder.normalize": (is_bool, "true or false"),
+    "text_encoder.normalize": BOOL,
     "text_encoder.null_condition": (lambda v: v == "zeros", "'zeros'"),
     "training_data.name": (is_str, "a non-empty string"),
     "training_data.license": (is_str, "a non-empty string"),
     "training_data.attribution": (lambda v: isinstance(v, str), "a string"),
     "license": (is_str, "a non-empty string"),
-    "quantization.text_encoder": (is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.text_encoder": QUANTIZATION,
     "files": (lambda v: isinstance(v, dict) and bool(v), "an object {file name: {sha256, bytes}}"),
 }
 # optional fields of every family: path -> (check, what it must be)
@@ -140,6 +150,14 @@ def check_fields(manifest: Mapping[str, Any], table: Mapping[str, FieldRule], *,
         value = lookup(manifest, dotted) if required else lookup(manifest, dotted, None)
         if (required or value is not None) and not check(value):
             raise BundleError(f"{MANIFEST_NAME}: field '{where}{dotted}' must be {expected}, got {value!r}")
+
+
+def check_block_size(manifest: Mapping[str, Any], block: str) -> None:
+    """A step graph's `<block>.block_size` holds the condition token and max_tokens steps."""
+    block_size = manifest[block]["block_size"]
+    if manifest["max_tokens"] > block_size - 1:
+        raise BundleError(f"{MANIFEST_NAME}: field '{block}.block_size' {block_size} is smaller than max_tokens + 1 "
+                          f"= {manifest['max_tokens'] + 1}")
 
 
 def family_of(manifest: Mapping[str, Any]) -> str:

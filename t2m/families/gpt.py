@@ -13,21 +13,29 @@ from typing import Any, ClassVar
 from t2m.bundle.errors import BundleError
 from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, features_output, kv_shape
-from t2m.bundle.manifest import COMMON_FILES, MANIFEST_NAME, POSITIVE, is_bool, is_int, is_number, is_optional_str
+from t2m.bundle.manifest import (
+    BOOL,
+    COMMON_FILES,
+    GUIDANCE,
+    INTEGER_ABOVE_1,
+    MANIFEST_NAME,
+    POSITIVE,
+    QUANTIZATION,
+    check_block_size,
+    is_int,
+)
 
 __all__ = ["FAMILY", "GPT_FIELDS", "REQUIRED_FILES", "GptFamily", "GptSettings"]
 
 REQUIRED_FILES = (*COMMON_FILES[:2], "gpt_step.onnx", *COMMON_FILES[2:])
-BLOCK_SIZE: FieldRule = (lambda v: is_int(v) and v > 1, "an integer > 1")
-GUIDANCE: FieldRule = (lambda v: is_number(v) and v >= 0, "a number >= 0")
 GPT_FIELDS: dict[str, FieldRule] = {
     "end_id": (is_int, "an integer"),
     "gpt.n_layer": POSITIVE,
     "gpt.n_head": POSITIVE,
     "gpt.head_dim": POSITIVE,
-    "gpt.block_size": BLOCK_SIZE,
-    "gpt.length_conditioning": (is_bool, "true or false"),
-    "gpt.unconditional_branch": (is_bool, "true or false"),
+    "gpt.block_size": INTEGER_ABOVE_1,
+    "gpt.length_conditioning": BOOL,
+    "gpt.unconditional_branch": BOOL,
     "gpt.default_guidance": GUIDANCE,
 }
 
@@ -66,7 +74,7 @@ class GptFamily(ModelFamily):
             if path == "text_encoder.kind":
                 table.update(GPT_FIELDS)
             if path == "files":
-                table["quantization.gpt_step"] = (is_optional_str, "null or a string such as 'int8-dynamic'")
+                table["quantization.gpt_step"] = QUANTIZATION
             table[path] = rule
         return table
 
@@ -74,10 +82,7 @@ class GptFamily(ModelFamily):
         if manifest["end_id"] != manifest["codebook_size"]:
             raise BundleError(f"{MANIFEST_NAME}: field 'end_id' is {manifest['end_id']}, expected codebook_size "
                               f"{manifest['codebook_size']} (End is the last logit)")
-        block_size = manifest["gpt"]["block_size"]
-        if manifest["max_tokens"] > block_size - 1:
-            raise BundleError(f"{MANIFEST_NAME}: field 'gpt.block_size' {block_size} is smaller than max_tokens + 1 "
-                              f"= {manifest['max_tokens'] + 1}")
+        check_block_size(manifest, "gpt")
 
     def required_files(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         return REQUIRED_FILES

@@ -11,10 +11,17 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
-from t2m.bundle.errors import BundleError
 from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, features_output, kv_shape
-from t2m.bundle.manifest import COMMON_FILES, MANIFEST_NAME, POSITIVE, is_bool, is_int, is_number, is_optional_str
+from t2m.bundle.manifest import (
+    BOOL,
+    COMMON_FILES,
+    GUIDANCE,
+    INTEGER_ABOVE_1,
+    POSITIVE,
+    QUANTIZATION,
+    check_block_size,
+)
 
 __all__ = ["FAMILY", "HIFIGPT_FIELDS", "HIFIGPT_GRAPHS", "HiFiGPTFamily", "HiFiGPTSettings"]
 
@@ -24,14 +31,14 @@ HIFIGPT_FIELDS: dict[str, FieldRule] = {
     "hifigpt.n_layer_residual": POSITIVE,
     "hifigpt.n_head": POSITIVE,
     "hifigpt.head_dim": POSITIVE,
-    "hifigpt.block_size": (lambda v: is_int(v) and v > 1, "an integer > 1"),
-    "hifigpt.length_conditioning": (is_bool, "true or false"),
-    "hifigpt.unconditional_branch": (is_bool, "true or false"),
-    "hifigpt.default_guidance": (lambda v: is_number(v) and v >= 0, "a number >= 0"),
+    "hifigpt.block_size": INTEGER_ABOVE_1,
+    "hifigpt.length_conditioning": BOOL,
+    "hifigpt.unconditional_branch": BOOL,
+    "hifigpt.default_guidance": GUIDANCE,
 }
 OPTIONAL_FIELDS: dict[str, FieldRule] = {
-    "quantization.temporal_step": (is_optional_str, "null or a string such as 'int8-dynamic'"),
-    "quantization.residual_step": (is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.temporal_step": QUANTIZATION,
+    "quantization.residual_step": QUANTIZATION,
 }
 
 
@@ -65,10 +72,7 @@ class HiFiGPTFamily(ModelFamily):
     int8_graphs = frozenset({"text", "temporal", "residual"})
 
     def check_consistency(self, manifest: Mapping[str, Any]) -> None:
-        block_size = manifest["hifigpt"]["block_size"]
-        if manifest["max_tokens"] > block_size - 1:
-            raise BundleError(f"{MANIFEST_NAME}: field 'hifigpt.block_size' {block_size} is smaller than "
-                              f"max_tokens + 1 = {manifest['max_tokens'] + 1}")
+        check_block_size(manifest, "hifigpt")
 
     def required_files(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         return (*COMMON_FILES[:2], *HIFIGPT_GRAPHS, *COMMON_FILES[2:])

@@ -17,20 +17,20 @@ from t2m.bundle.errors import BundleError
 from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, branch_graphs, features_output
 from t2m.bundle.manifest import (
+    BOOL,
+    GUIDANCE,
     LENGTH_GRAPH,
     MANIFEST_NAME,
     POSITIVE,
-    is_bool,
+    QUANTIZATION,
     is_int,
     is_number,
     is_optional_positive,
-    is_optional_str,
 )
 
 __all__ = ["BRANCH_FIELDS", "FAMILY", "MASKED_FIELDS", "BranchSettings", "MaskedFamily", "MaskedSettings",
            "branch_graphs"]
 
-GUIDANCE: FieldRule = (lambda v: is_number(v) and v >= 0, "a number >= 0")
 TOP_K: FieldRule = (is_optional_positive, "null or a positive integer")
 MASKED_FIELDS: dict[str, FieldRule] = {
     "masked.columns": POSITIVE,
@@ -41,16 +41,15 @@ MASKED_FIELDS: dict[str, FieldRule] = {
     "masked.residual_top_k": TOP_K,
     "masked.mask_id": (is_int, "an integer"),
     "masked.pad_id": (is_int, "an integer"),
-    "masked.unconditional_branch": (is_bool, "true or false"),
-    "masked.length_estimator": (is_bool, "true or false"),
+    "masked.unconditional_branch": BOOL,
+    "masked.length_estimator": BOOL,
 }
-MASK_CLASS: FieldRule = (is_bool, "true or false")
 OPTIONAL_FIELDS: dict[str, FieldRule] = {
     "masked.residual_temperature": (lambda v: is_number(v) and v > 0, "null or a number > 0"),
-    "quantization.masked": (is_optional_str, "null or a string such as 'int8-dynamic'"),
-    "quantization.residual": (is_optional_str, "null or a string such as 'int8-dynamic'"),
+    "quantization.masked": QUANTIZATION,
+    "quantization.residual": QUANTIZATION,
     "masked.temperature": (lambda v: is_number(v) and v > 0, "null or a number > 0"),
-    "masked.residual_mask_class": MASK_CLASS,
+    "masked.residual_mask_class": BOOL,
     "masked.branches": (lambda v: isinstance(v, list), "a list of branch objects"),
 }
 # the optional `masked.branches` list (MoGenTS: its 1D "aux" tokens beside the 2D map): each entry's fields
@@ -59,7 +58,7 @@ BRANCH_FIELDS: dict[str, FieldRule] = {
     "columns": POSITIVE,
     "codebook_size": POSITIVE,
     **{field: MASKED_FIELDS[f"masked.{field}"] for field in ("top_k", "residual_top_k", "mask_id", "pad_id")},
-    "residual_mask_class": MASK_CLASS,
+    "residual_mask_class": BOOL,
 }
 # MaskedSettings fields `t2m eval --masked` takes from its options
 EVAL_OPTIONS = ("steps", "residual_guidance", "residual_top_k")
