@@ -71,26 +71,28 @@ def wait_until_healthy(url: str, timeout_s: float, process: subprocess.Popen | N
 @contextlib.contextmanager
 def running_server(model_dir: str | Path, env: dict[str, str] | None = None, startup_timeout_s: float = 120.0,
                    log_dir: str | Path | None = None,
-                   extra_models: Sequence[str | Path] = ()) -> Iterator[LiveServer]:
+                   extra_models: Sequence[str | Path] = (), code_dir: str | Path | None = None) -> Iterator[LiveServer]:
     """`t2m serve --host 127.0.0.1 --port <free> --model DIR` as a child process, healthy on entry, stopped on exit.
 
     `env` adds T2M_* settings (for example {"T2M_MAX_QUEUE": "2"}); `extra_models` are served next to DIR (one more
     `--model` each; DIR stays the default). The server's output goes to a log file whose tail is shown if it fails
-    to start.
+    to start. `code_dir`: another checkout of this repository whose code the server runs (a before/after benchmark
+    against an older commit: `git worktree add DIR COMMIT`); default this one.
     """
+    code = Path(code_dir).resolve() if code_dir else REPO
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="t2m-server-"))
     log_dir.mkdir(parents=True, exist_ok=True)
     log_path = log_dir / f"server-{port}.log"
     child_env = {**os.environ, **(env or {})}
-    child_env.setdefault("PYTHONPATH", str(REPO))
+    child_env["PYTHONPATH"] = str(code) if code_dir else child_env.get("PYTHONPATH", str(REPO))
     command = [sys.executable, "-m", "t2m.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
                "--model", str(model_dir)]
     for extra in extra_models:
         command += ["--model", str(extra)]
     with open(log_path, "wb") as log:
-        process = subprocess.Popen(command, cwd=REPO, env=child_env, stdout=log, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(command, cwd=code, env=child_env, stdout=log, stderr=subprocess.STDOUT)
     try:
         wait_until_healthy(url, startup_timeout_s, process, log_path)
         yield LiveServer(url=url, pid=process.pid, log_path=log_path)

@@ -66,5 +66,14 @@ class CaptionIndex:
         """The k captions most similar (cosine) to each query row, best first."""
         similarity = unit_rows(queries) @ self.features.T                 # [Q, N]
         k = min(k, similarity.shape[1])
-        best = np.argsort(-similarity, axis=1, kind="stable")[:, :k]
-        return [[Neighbour(self.captions[j], float(similarity[q, j])) for j in row] for q, row in enumerate(best)]
+        if k == 0:
+            return [[] for _ in range(len(similarity))]
+        # the k best by a partial sort (every request pays this); ties at the k-th value are all kept as candidates,
+        # so the order is exactly a full stable sort's: best first, the lower index first among equals
+        kth = np.partition(similarity, -k, axis=1)[:, -k]
+        out = []
+        for q, row in enumerate(similarity):
+            candidates = np.flatnonzero(row >= kth[q])
+            best = candidates[np.argsort(-row[candidates], kind="stable")[:k]]
+            out.append([Neighbour(self.captions[j], float(row[j])) for j in best])
+        return out

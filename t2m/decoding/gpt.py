@@ -24,17 +24,14 @@ import numpy as np
 
 from t2m.decoding.lockstep import (
     Cohort,
-    Rows,
     SamplingJob,
     Segment,
-    StepRows,
+    draw_for_jobs,
     drop_finished,
-    guided,
     live_segments,
     report_progress,
     row_maps,
 )
-from t2m.decoding.tokens import sample_tokens
 
 __all__ = ["GptCohort", "GptStep", "SamplingJob", "sample_codes"]
 
@@ -50,15 +47,6 @@ class GptStep(Protocol):
                  past: Any) -> tuple[np.ndarray, Any]:
         """(cond [B, Dt], previous token [B], position, length [B], past) -> (logits [B, V+1], present)."""
         ...
-
-
-def _choose(job: SamplingJob, active: list[int], logits: np.ndarray, rows: Rows, batch: StepRows,
-            end_id: int) -> np.ndarray:
-    """The next token of each active segment of one job: guided logits, End rule, one draw each."""
-    # End is never a first token, and never before a segment's target
-    mask_end = np.asarray([batch.segments[s].target is not None or not batch.segments[s].tokens for s in active])
-    return sample_tokens(guided(job, active, logits, rows), mask_end, end_id, job.temperature, job.top_k, job.rng,
-                         greedy=job.greedy)
 
 
 def _advance(segment: Segment, token: int, end_id: int, max_tokens: int) -> None:
@@ -83,9 +71,13 @@ class GptCohort(Cohort):
         logits, batch.past = self.step(batch.cond, tokens_in, self.position, batch.length, batch.past)
         if on_step is not None:
             on_step(len(batch.owner))
-        rows = row_maps(batch.owner)
-        for job, active in live_segments(batch, self.jobs, self.cancelled):
-            for s, token in zip(active, _choose(job, active, logits, rows, batch, self.end_id).tolist()):
+        going = list(live_segments(batch, self.jobs, self.cancelled))
+        # End is never a first token, and never before a segment's target
+        no_end = [batch.segments[s].target is not None or not batch.segments[s].tokens
+                  for _, active in going for s in active]
+        drawn = draw_for_jobs(logits, row_maps(batch.owner), going, forbid=(np.asarray(no_end), self.end_id))
+        for (job, active), tokens in zip(going, drawn):
+            for s, token in zip(active, tokens.tolist()):
                 _advance(batch.segments[s], token, self.end_id, self.max_tokens)
             report_progress(batch, job, active)
         drop_finished(batch, self.step)

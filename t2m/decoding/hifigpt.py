@@ -25,7 +25,7 @@ import numpy as np
 
 from t2m.decoding import lockstep
 from t2m.decoding.lockstep import SamplingJob
-from t2m.decoding.tokens import draw_stops, draw_tokens
+from t2m.decoding.tokens import draw_stops
 
 __all__ = ["HiFiGPTCohort", "ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
 
@@ -112,9 +112,7 @@ def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple
         logits, past = residual(context, code_in, d, past)
         if on_step is not None:
             on_step(len(owner))
-        for job, active in going:
-            guided = lockstep.guided(job, active, logits, rows)
-            drawn = draw_tokens(guided, job.temperature, job.top_k, job.rng, job.greedy)
+        for (_, active), drawn in zip(going, lockstep.draw_for_jobs(logits, rows, going)):
             for s, code in zip(active, drawn):
                 chosen[s][d] = code
         code_in = np.asarray([chosen[int(s)][d] for s in owner], dtype=np.int64)

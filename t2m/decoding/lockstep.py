@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.decoding.tokens import guided_logits
+from t2m.decoding.tokens import RowRule, draw_tokens_of_jobs, guided_logits
 
 __all__ = [
     "Cohort",
@@ -27,6 +27,7 @@ __all__ = [
     "Segment",
     "StepRows",
     "check_targets",
+    "draw_for_jobs",
     "drop_finished",
     "guided",
     "keep_rows",
@@ -158,6 +159,30 @@ def guided(job: SamplingJob, active: Sequence[int], logits: np.ndarray, rows: Ro
     return guided_logits(chosen, logits[[rows.null[s] for s in active]].astype(np.float64), job.guidance)
 
 
+def draw_for_jobs(logits: np.ndarray, rows: Rows, going: Sequence[tuple[SamplingJob, Sequence[int]]],
+                  forbid: tuple[np.ndarray, int] | None = None) -> list[np.ndarray]:
+    """Per (job, active segments) of `going`, the class drawn for each segment: its cond row's logits guided with
+    its null row by the job's scale (as `guided`), then one draw each with the job's options and generator, all jobs
+    in one batched draw (tokens.draw_tokens_of_jobs: the same numbers as job by job). `forbid` = (mask over the
+    active segments in order, class): that class is impossible where the mask is true (the GPT's End rule)."""
+    segments = [s for _, active in going for s in active]
+    if not segments:
+        return [np.zeros(0, dtype=np.int64) for _ in going]
+    counts = [len(active) for _, active in going]
+    scale = np.repeat([job.guidance for job, _ in going], counts)
+    cond = logits[[rows.cond[s] for s in segments]].astype(np.float64)
+    chosen = cond
+    if (scale != 1.0).any():
+        null = logits[[rows.null.get(s, rows.cond[s]) for s in segments]].astype(np.float64)
+        chosen = np.where((scale != 1.0)[:, None], guided_logits(cond, null, scale[:, None]), cond)
+    if forbid is not None:
+        mask, forbidden = forbid
+        chosen[np.asarray(mask, dtype=bool), forbidden] = -np.inf
+    drawn = draw_tokens_of_jobs(chosen, [RowRule(len(active), job.temperature, job.top_k, job.rng, job.greedy)
+                                         for job, active in going])
+    return np.split(drawn, np.cumsum(counts)[:-1])
+
+
 def live_segments(batch: StepRows, jobs: Sequence[SamplingJob],
                   cancelled: list[bool]) -> Iterator[tuple[SamplingJob, list[int]]]:
     """Each job with segments still going, and those segments; a job cancelled since the last step is marked in
@@ -226,6 +251,14 @@ class Cohort:
     @property
     def done(self) -> bool:
         return not len(self.batch.owner)
+
+    def shortest_job_steps(self) -> int:
+        """The size of its smallest unfinished job, in steps (its longest segment; a free one counts as max_tokens):
+        what a scheduler that runs short requests first compares (t2m.service.engine.step_order)."""
+        return min((max(self.max_tokens if self.batch.segments[s].target is None else self.batch.segments[s].target
+                        for s in indices)
+                    for indices in self.batch.of_job if not all(self.batch.segments[s].done for s in indices)),
+                   default=0)
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> None:
         """One time step for every live row (the family's network calls); `on_step(rows)` after each call."""

@@ -24,6 +24,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from t2m import __version__
 from t2m.service.dependencies import ServiceState
+from t2m.service.engine.step_order import step_order
 from t2m.service.engine.types import Engine
 from t2m.service.formats import preload as preload_formats
 from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
@@ -75,7 +76,8 @@ def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engin
 def _batcher_for(engine: Engine, settings: Settings) -> QueuedWorkers:
     return batcher_for(engine, continuous=settings.continuous_batching, max_queue=settings.max_queue,
                        max_batch_rows=settings.max_batch_rows, window_s=settings.batch_window_ms / 1000.0,
-                       workers=settings.engine_workers)
+                       workers=settings.engine_workers,
+                       step_order=step_order(settings.step_order, settings.max_step_skips))
 
 
 def create_app(settings: Settings | None = None, *,

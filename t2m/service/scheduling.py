@@ -11,7 +11,8 @@ Two ways to run what was admitted, side by side here:
   `engine.generate_batch`; the worker takes the next batch when it is done (families without cohorts, e.g. masked).
 - `ContinuousBatcher` (continuous stepping): the worker keeps its engine's continuous session
   (t2m.service.engine.continuous) open; the requests admitted at a step boundary start as a new cohort beside the
-  running ones, everything steps once, and a request is answered the step its codes are done.
+  running ones (or join the newest if it has not stepped yet), the cohorts its StepOrder chooses step once (the
+  shortest work first: t2m.service.engine.step_order), and a request is answered the step its codes are done.
 Words: a *queued request* waits here; a *batch* is the requests run together to their end; a *cohort* the requests
 that started stepping at one boundary; *rows* what a step's graph call computes (a segment each, two with guidance).
 Each request keeps its own random generator, so no schedule changes its motion.
@@ -28,6 +29,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from t2m.service.engine.step_order import StepOrder
 from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
 
 __all__ = [
@@ -238,27 +240,33 @@ class CohortRunner(Protocol):
     def advance(self) -> list[tuple[GenerationRequest, Motion | BaseException]]: ...
 
 
-def running_cohorts(engine: Engine) -> CohortRunner | None:
-    """A new continuous session of `engine`, or None if it has none (its family runs batches to their end)."""
+def running_cohorts(engine: Engine, order: StepOrder | None = None) -> CohortRunner | None:
+    """A new continuous session of `engine` stepping its cohorts in `order` (engine/step_order.py; None: the
+    default, shortest work first), or None if it has none (its family runs batches to their end)."""
     make = getattr(engine, "continuous", None)
-    return make() if callable(make) else None
+    if not callable(make):
+        return None
+    return make(order) if order is not None else make()
 
 
 class ContinuousBatcher(QueuedWorkers):
     """Continuous stepping: each worker keeps a running session that requests join and leave at step boundaries."""
 
     def __init__(self, engine: Engine, *, max_queue: int = 16, max_batch_rows: int = 64, window_s: float = 0.005,
-                 workers: int = 1, on_step: Callable[[int], None] | None = None) -> None:
-        """`on_step(steps)` runs in the worker after each step boundary (tests use it to submit mid-run)."""
+                 workers: int = 1, on_step: Callable[[int], None] | None = None,
+                 step_order: StepOrder | None = None) -> None:
+        """`on_step(steps)` runs in the worker after each step boundary (tests use it to submit mid-run);
+        `step_order`: which cohorts step at a boundary (engine/step_order.py; None: shortest work first)."""
         if running_cohorts(engine) is None:
             raise TypeError(f"{type(engine).__name__} has no continuous session; use MicroBatcher")
         self.on_step = on_step
+        self.step_order = step_order
         self.joins_mid_run = 0       # requests that joined while another was part-way through (all workers)
         super().__init__(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s,
                          workers=workers)
 
     def _session(self) -> CohortRunner:
-        session = running_cohorts(self.engine)
+        session = running_cohorts(self.engine, self.step_order)
         assert session is not None  # checked in __init__
         return session
 
@@ -295,7 +303,11 @@ class ContinuousBatcher(QueuedWorkers):
 
 
 def batcher_for(engine: Engine, *, continuous: bool, max_queue: int, max_batch_rows: int, window_s: float,
-                workers: int) -> QueuedWorkers:
-    """ContinuousBatcher when asked for and the engine has a continuous session, else MicroBatcher."""
-    kind = ContinuousBatcher if continuous and running_cohorts(engine) is not None else MicroBatcher
-    return kind(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s, workers=workers)
+                workers: int, step_order: StepOrder | None = None) -> QueuedWorkers:
+    """ContinuousBatcher (its cohorts stepped in `step_order`) when asked for and the engine has a continuous
+    session, else MicroBatcher."""
+    if continuous and running_cohorts(engine) is not None:
+        return ContinuousBatcher(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s,
+                                 workers=workers, step_order=step_order)
+    return MicroBatcher(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s,
+                        workers=workers)

@@ -72,6 +72,16 @@ class Settings(BaseSettings):
         True, description="The autoregressive families (GPT and T2M-HiFiGPT): a request joins the running batch at "
                           "the next step boundary and is answered as soon as its own codes are done (false: each "
                           "batch runs to its end first). The masked family always runs batches to their end.")
+    step_order: Literal["shortest-first", "every-cohort"] = Field(
+        "shortest-first", description="With continuous batching, which running cohorts step at each step boundary: "
+                                      "'shortest-first' runs the cohort holding the smallest request (and those "
+                                      "whose smallest is at most twice its size, and any passed over max_step_skips "
+                                      "times in a row), so a short request is not slowed by long ones beside it; "
+                                      "'every-cohort' steps them all every time (the order before 0.4).")
+    max_step_skips: int = Field(
+        1, ge=0, le=16, description="shortest-first: a cohort is passed over at most this many step boundaries in a "
+                                    "row (0 = never: every cohort steps every time), which bounds what long "
+                                    "requests lose to short ones.")
     request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")
     max_body_bytes: int = Field(64 * 1024, ge=1024, description="Larger request bodies answer 413.")
     # uvicorn has no such deadlines: without them a half-sent request holds its connection for ever (issue 25)

@@ -9,6 +9,7 @@ from concurrent.futures import Future
 import numpy as np
 import pytest
 
+from t2m.service.engine.step_order import EveryCohort, ShortestFirst, step_order
 from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, SegmentRequest
 from t2m.service.scheduling import ContinuousBatcher, MicroBatcher, batcher_for
 from tests.service.fakes import FakeEngine
@@ -156,3 +157,58 @@ def test_the_masked_family_keeps_run_to_completion_batches(masked_bundle):
         assert type(batcher) is MicroBatcher
     finally:
         batcher.close()
+
+
+def test_shortest_first_steps_the_nearest_cohort_and_bounds_the_wait():
+    order = ShortestFirst(ratio=2.0, max_skips=1)
+    assert order.choose([25, 5], [0, 0]) == [False, True]          # the long one waits for the short one
+    assert order.choose([25, 4], [1, 0]) == [True, True]           # ... at most max_skips boundaries in a row
+    assert order.choose([10, 6, 25], [0, 0, 0]) == [True, True, False]   # within twice the nearest: they step too
+    assert order.choose([], []) == []
+    assert EveryCohort().choose([25, 5], [0, 0]) == [True, True]
+    assert ShortestFirst(max_skips=0).choose([25, 5], [0, 0]) == [True, True]   # 0: nobody is ever passed over
+    with pytest.raises(ValueError, match="ratio"):
+        ShortestFirst(ratio=0.5)
+    with pytest.raises(ValueError, match="unknown step order"):
+        step_order("longest-first")
+
+
+def _positions_while_short_runs(engine, order) -> tuple[list[int], dict[int, Motion | BaseException], list]:
+    """A long request steps 3 times, a short one joins: the long cohort's position at each boundary until the short
+    one is answered, and every answer."""
+    session = engine.continuous(order)
+    long, short = _long(), _short()
+    session.admit([long])
+    for _ in range(3):
+        session.advance()
+    session.admit([short])
+    positions, finished = [], []
+    while not any(request is short for request, _ in finished):
+        finished += session.advance()
+        positions.append(session.running[0].cohort.position)
+    finished += _run_until_idle(session)
+    return positions, {id(request): result for request, result in finished}, [long, short]
+
+
+def test_a_short_request_runs_first_and_no_order_changes_a_motion(engine):
+    alone_long, alone_short = engine.generate(_long()), engine.generate(_short())
+    every, every_results, (long_e, short_e) = _positions_while_short_runs(engine, EveryCohort())
+    first, first_results, (long_f, short_f) = _positions_while_short_runs(engine, ShortestFirst(max_skips=1))
+    steps_of_short = len(every)
+    # the short one needs as many boundaries in both orders (it steps at every one); the long one stepped at each
+    # of them in the old order, and at every other one (max_skips 1) while the short one ran shortest-first
+    assert len(first) == steps_of_short and every == list(range(4, 4 + steps_of_short))
+    assert first[-1] - 3 == steps_of_short // 2 and all(b - a <= 1 for a, b in zip([3] + first, first))
+    for results, long, short in ((every_results, long_e, short_e), (first_results, long_f, short_f)):
+        assert _same_motion(results[id(long)], alone_long) and _same_motion(results[id(short)], alone_short)
+
+
+def test_requests_admitted_before_the_newest_cohort_stepped_join_it(engine):
+    wanted = engine.generate_batch([_long(), _short()])
+    session = engine.continuous(ShortestFirst())
+    long, short = _long(), _short()
+    session.admit([long])
+    session.admit([short])          # nothing stepped in between: the same cohort
+    assert len(session.running) == 1 and session.merged == 1 and session.joins_mid_run == 0
+    results = {id(request): result for request, result in _run_until_idle(session)}
+    assert _same_motion(results[id(long)], wanted[0]) and _same_motion(results[id(short)], wanted[1])

@@ -5,9 +5,12 @@ The step graphs (gpt_step.onnx, temporal_step.onnx) take one `position` for all 
 one length with no attention mask, so rows at different positions cannot share a call without changing their
 logits. What the graphs allow exactly: the requests admitted at one boundary form a cohort (t2m.decoding.lockstep.
 Cohort: GptCohort, HiFiGPTCohort) whose rows step together; cohorts of different ages run side by side, one call
-each (T2M-HiFiGPT: 1 + R) per step boundary, oldest first. A request is decoded and returned the
-step its last segment finishes, whatever is still running beside it. Its codes come from its own seeded generator
-and its own rows' logits, so they are the same alone, in a run-to-completion batch, or joined mid-run.
+each (T2M-HiFiGPT: 1 + R) per step boundary, oldest first; which of them step at a boundary is the session's
+StepOrder's choice (engine/step_order.py: the shortest work first by default). Requests admitted while the newest
+cohort has not stepped yet join it (nothing was computed for it, so it is the same as starting together). A request
+is decoded and returned the step its last segment finishes, whatever is still running beside it. Its codes come
+from its own seeded generator and its own rows' logits, so they are the same alone, in a run-to-completion batch,
+joined mid-run, or in any step order.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from t2m.decoding.lockstep import Cohort, SamplingJob
+from t2m.service.engine.step_order import ShortestFirst, StepOrder
 from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion
 
 __all__ = ["CohortSource", "Finished", "PreparedJobs", "RunningCohorts"]
@@ -59,16 +63,19 @@ class _Running:
     cohort: Cohort
     requests: list[GenerationRequest]
     notes: list[list[str]]
+    skipped: int = 0        # boundaries in a row this cohort was passed over (the StepOrder's bound)
 
 
 class RunningCohorts:
-    """One worker's running work: `admit` requests at a step boundary, `advance` every cohort by one step."""
+    """One worker's running work: `admit` requests at a step boundary, `advance` the cohorts `order` chooses."""
 
-    def __init__(self, engine: _Engine, codes: CohortSource) -> None:
+    def __init__(self, engine: _Engine, codes: CohortSource, order: StepOrder | None = None) -> None:
         self.engine, self.codes = engine, codes
+        self.order: StepOrder = order or ShortestFirst()
         self.running: list[_Running] = []
         self.steps = 0          # step boundaries passed (advance calls)
         self.joins_mid_run = 0  # requests admitted while another cohort was part-way through
+        self.merged = 0         # requests that joined a cohort which had not stepped yet
 
     @property
     def rows(self) -> int:
@@ -88,14 +95,26 @@ class RunningCohorts:
             jobs: list[SamplingJob] = prepared.jobs
             mid_run = any(running.cohort.position > 0 for running in self.running)
             self.joins_mid_run += len(jobs) if mid_run else 0
-            self.running.append(_Running(self.codes.cohort(jobs, self.engine.limits.max_tokens),
-                                         [requests[i] for i in prepared.owners], prepared.notes))
+            owners = [requests[i] for i in prepared.owners]
+            if self.running and self.running[-1].cohort.position == 0:   # not stepped yet: start together
+                newest = self.running.pop()
+                self.merged += len(jobs)
+                jobs, owners = list(newest.cohort.jobs) + jobs, newest.requests + owners
+                prepared.notes = newest.notes + prepared.notes
+            self.running.append(_Running(self.codes.cohort(jobs, self.engine.limits.max_tokens), owners,
+                                         prepared.notes))
         return failed
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> Finished:
-        """One step of every cohort; the requests that finished in it, decoded."""
+        """One step of each cohort the order chooses; the requests that finished in it, decoded."""
         done: Finished = []
-        for running in self.running:
+        chosen = self.order.choose([running.cohort.shortest_job_steps() for running in self.running],
+                                   [running.skipped for running in self.running])
+        for running, steps in zip(self.running, chosen):
+            if not steps:
+                running.skipped += 1
+                continue
+            running.skipped = 0
             running.cohort.advance(on_step)
             for index, codes in running.cohort.finished():
                 request = running.requests[index]

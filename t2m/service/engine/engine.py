@@ -28,6 +28,7 @@ from t2m.service.engine.execution import Execution
 from t2m.service.engine.family_codes import FamilyCodes, ends_segments
 from t2m.service.engine.reach import DecoderReach, probe_reach
 from t2m.service.engine.requests import segment_steps
+from t2m.service.engine.step_order import StepOrder
 from t2m.service.engine.streaming import FrameStreamer
 from t2m.service.engine.text import TextEncoder, load_tokenizer
 from t2m.service.engine.timeline import FittedSink, Timeline, fit_frames
@@ -211,12 +212,13 @@ class OnnxEngine:
             log.exception("decoding failed")
             return error
 
-    def continuous(self) -> RunningCohorts | None:
-        """A continuous-batching session (requests join and leave at step boundaries) for the families that can,
-        or None (e.g. the masked family, not autoregressive: run-to-completion micro-batching)."""
+    def continuous(self, order: StepOrder | None = None) -> RunningCohorts | None:
+        """A continuous-batching session (requests join and leave at step boundaries; `order` picks the cohorts
+        that step at each: the shortest work first by default) for the families that can, or None (e.g. the masked
+        family, not autoregressive: run-to-completion micro-batching)."""
         if not self.capabilities.continuous_batching:
             return None
-        return RunningCohorts(self, self.codes)  # type: ignore[arg-type]  # such families start cohorts
+        return RunningCohorts(self, self.codes, order)  # type: ignore[arg-type]  # such families start cohorts
 
     @property
     def step(self) -> Any:

@@ -1,0 +1,204 @@
+"""Short requests first, before/after in one run: two `t2m serve` processes on the same bundle, both with continuous
+batching, one stepping every cohort at every step boundary (T2M_STEP_ORDER=every-cohort, the order before issue
+29), one running the shortest work first (shortest-first, the default), driven by the same clients in alternating
+phases so that both see the same machine.
+
+Phases, each against both servers in every round (order before, after, then after, before, ...):
+  short alone  one probe client sends a 2 s one-sentence request, waits for the answer, pauses --probe-pause-ms, again
+  long alone   --long-clients send 30 s three-sentence requests (3 x 10 s) back to back
+  mixed        both at once: the probe's latency under the long load, and the long load's answers/s beside the probe
+  sixteen      --clients (16) send 10 s one-sentence requests back to back
+The table: the probe's p50/p90 alone and under load and their ratio (the goal: p90 under load at most 2x alone), the
+long requests' answers/s alone and beside the probe (what they lose to it), and the 16-client answers/s and p99.
+Loopback only; bounded like load_test.py.
+
+    python benchmarks/step_order.py --model t2m/bundles/default --seconds 20 --rounds 2
+    # "before" = the code of an older commit (its own default order), e.g. the commit before issue 29's scheduling:
+    git worktree add /tmp/before 5164bad && python benchmarks/step_order.py --before-code /tmp/before
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import random
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+
+if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from benchmarks.continuous_batching import machine
+from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, SENTENCES, PhaseResult, post_and_record
+from benchmarks.server_process import require_loopback, running_server
+
+__all__ = ["MODES", "PHASES", "main", "run_phase"]
+
+MODES = {"before": "every-cohort", "after": "shortest-first"}    # label -> T2M_STEP_ORDER
+PHASES = ("short alone", "long alone", "mixed", "sixteen")
+KINDS = {"short": (2.0, 1), "long": (30.0, 3), "ten": (10.0, 1)}   # kind -> (motion seconds, sentences)
+MAX_ROUNDS = 20
+
+
+def _body(rng: random.Random, kind: str) -> dict:
+    seconds, sentences = KINDS[kind]
+    return {"segments": [{"text": rng.choice(SENTENCES), "duration": seconds / sentences} for _ in range(sentences)],
+            "seed": rng.randrange(2**31)}
+
+
+async def _client(client: httpx.AsyncClient, url: str, make_body: Callable[[], dict], result: PhaseResult,
+                  deadline: float, pause_s: float) -> None:
+    """One user: a request, then (after `pause_s`) the next, until the deadline."""
+    while time.monotonic() < deadline:
+        response = await post_and_record(client, url, make_body(), result)
+        if response is not None and response.status_code == 429:
+            await asyncio.sleep(float(response.headers.get("Retry-After", "1") or 1))
+        await asyncio.sleep(pause_s)
+
+
+async def run_phase(url: str, phase: str, seconds: float, *, long_clients: int, clients: int, probe_pause_s: float,
+                    seed: int) -> dict[str, PhaseResult]:
+    """One phase against `url`: per request kind its PhaseResult (requests in flight at the deadline are awaited)."""
+    require_loopback(url)
+    users: dict[str, tuple[int, float]] = {   # kind -> (clients, pause between requests)
+        "short alone": {"short": (1, probe_pause_s)}, "long alone": {"long": (long_clients, 0.0)},
+        "mixed": {"short": (1, probe_pause_s), "long": (long_clients, 0.0)}, "sixteen": {"ten": (clients, 0.0)},
+    }[phase]
+    results = {kind: PhaseResult(name=kind, clients=n, seconds=seconds) for kind, (n, _) in users.items()}
+    total = sum(n for n, _ in users.values())
+    limits = httpx.Limits(max_connections=total, max_keepalive_connections=total)
+    async with httpx.AsyncClient(timeout=600.0, limits=limits) as client:
+        started = time.monotonic()
+        deadline = started + seconds
+        tasks = []
+        for k, (kind, (n, pause)) in enumerate(users.items()):
+            for i in range(n):
+                rng = random.Random(seed * 10_000 + k * 1000 + i)
+                tasks.append(_client(client, url, lambda rng=rng, kind=kind: _body(rng, kind), results[kind],
+                                     deadline, pause))
+        await asyncio.gather(*tasks)
+        for result in results.values():
+            result.seconds = time.monotonic() - started
+    return results
+
+
+def _warm_up(url: str) -> None:
+    rng = random.Random(0)
+    with httpx.Client(timeout=600.0) as client:
+        for kind in KINDS:
+            client.post(f"{url}/generate", json=_body(rng, kind)).raise_for_status()
+
+
+def _ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
+
+
+def format_table(pooled: dict[tuple[str, str, str], PhaseResult]) -> str:
+    """One row per server: the probe alone and under load, the long load alone and beside the probe, sixteen."""
+    def get(mode: str, phase: str, kind: str) -> PhaseResult | None:
+        return pooled.get((mode, phase, kind))
+
+    lines = ["| step order | short p50 / p90 alone ms | short p50 / p90 under load ms | p90 ratio | long answers/s "
+             "alone | long answers/s beside the probe | long p50 ms beside it | 16 clients answers/s | 16 clients "
+             "p50 / p99 ms | non-2xx |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for mode, order in MODES.items():
+        alone, loaded = get(mode, "short alone", "short"), get(mode, "mixed", "short")
+        long_alone, long_mixed = get(mode, "long alone", "long"), get(mode, "mixed", "long")
+        sixteen = get(mode, "sixteen", "ten")
+        ratio = "-"
+        if alone and loaded and alone.percentile(90) and loaded.percentile(90):
+            ratio = f"{loaded.percentile(90) / alone.percentile(90):.2f}"   # type: ignore[operator]
+        errors = sum(r.summary()[key] for (m, _, _), r in pooled.items() if m == mode
+                     for key in ("4xx", "429", "5xx", "connection_errors"))
+
+        def pair(result: PhaseResult | None, low: float, high: float) -> str:
+            return "-" if result is None else f"{_ms(result.percentile(low))} / {_ms(result.percentile(high))}"
+
+        def rate(result: PhaseResult | None) -> str:
+            return "-" if result is None else f"{result.summary()['ok_per_s']:.2f}"
+
+        long_p50 = _ms(long_mixed.percentile(50) if long_mixed else None)
+        lines.append(f"| {mode} ({order}) | {pair(alone, 50, 90)} | {pair(loaded, 50, 90)} | {ratio} | "
+                     f"{rate(long_alone)} | {rate(long_mixed)} | {long_p50} | {rate(sixteen)} | "
+                     f"{pair(sixteen, 50, 99)} | {errors} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", default="t2m/bundles/default", help="bundle served by both servers")
+    parser.add_argument("--seconds", type=float, default=20.0, help="length of each phase")
+    parser.add_argument("--rounds", type=int, default=2, help="each phase against each server this many times")
+    parser.add_argument("--phases", default=",".join(PHASES))
+    parser.add_argument("--long-clients", type=int, default=3, help="clients sending 30 s three-sentence requests")
+    parser.add_argument("--clients", type=int, default=16, help="sixteen: concurrent clients")
+    parser.add_argument("--probe-pause-ms", type=float, default=100.0, help="the probe's pause between requests")
+    parser.add_argument("--intra-op-threads", type=int, default=1, help="the servers' T2M_INTRA_OP_THREADS")
+    parser.add_argument("--max-step-skips", type=int, default=1, help="the 'after' server's T2M_MAX_STEP_SKIPS")
+    parser.add_argument("--before-code", help="a checkout of an older commit: the 'before' server runs its code "
+                                              "(with its own defaults) instead of this one's every-cohort order")
+    parser.add_argument("--startup-timeout", type=float, default=900.0, help="seconds a server may take to load")
+    parser.add_argument("--json-out", help="also write the figures as JSON here")
+    args = parser.parse_args(argv)
+    phases = [p.strip() for p in args.phases.split(",") if p.strip()]
+    problems = [f"--phases: unknown {p!r}" for p in phases if p not in PHASES]
+    problems += [f"{name}: {value} is outside 1..{MAX_CLIENTS}" for name, value in
+                 (("--clients", args.clients), ("--long-clients", args.long_clients)) if not 1 <= value <= MAX_CLIENTS]
+    problems += [] if 0 < args.seconds <= MAX_SECONDS else [f"--seconds: outside (0, {MAX_SECONDS:g}]"]
+    problems += [] if 1 <= args.rounds <= MAX_ROUNDS else [f"--rounds: outside 1..{MAX_ROUNDS}"]
+    problems += [] if 0 <= args.probe_pause_ms <= 10_000 else ["--probe-pause-ms: outside 0..10000"]
+    if problems:
+        print(f"step_order: error: {'; '.join(problems)}", file=sys.stderr)
+        return 2
+
+    env = {"T2M_MAX_QUEUE": "256", "T2M_REQUEST_TIMEOUT_S": "600", "T2M_INTRA_OP_THREADS": str(args.intra_op_threads),
+           "T2M_VERIFY_HASHES": "false", "T2M_CONTINUOUS_BATCHING": "true"}
+    before = machine()
+    results: dict[tuple[str, str, str], list[PhaseResult]] = {}
+    start = {"startup_timeout_s": args.startup_timeout}
+    model = str(Path(args.model).resolve())
+    with running_server(model, env={**env, "T2M_STEP_ORDER": MODES["before"]}, code_dir=args.before_code,
+                        **start) as old, \
+            running_server(model, env={**env, "T2M_STEP_ORDER": MODES["after"],
+                                            "T2M_MAX_STEP_SKIPS": str(args.max_step_skips)}, **start) as new:
+        servers = {"before": old.url, "after": new.url}
+        for url in servers.values():
+            _warm_up(url)
+        for round_index in range(args.rounds):
+            order = list(MODES) if round_index % 2 == 0 else list(reversed(MODES))
+            for phase in phases:
+                for mode in order:
+                    got = asyncio.run(run_phase(servers[mode], phase, args.seconds, long_clients=args.long_clients,
+                                                clients=args.clients, probe_pause_s=args.probe_pause_ms / 1000,
+                                                seed=round_index))
+                    for kind, result in got.items():
+                        results.setdefault((mode, phase, kind), []).append(result)
+                    print(f"round {round_index + 1} {phase} {mode}: " + ", ".join(
+                        f"{kind} {r.status_2xx} answers" for kind, r in got.items()), file=sys.stderr)
+    after = machine()
+    pooled = {key: PhaseResult.pooled(key[2], phases_[0].clients, phases_) for key, phases_ in results.items()}
+    print(f"## Short requests first, before/after ({args.model}, {args.rounds} round(s) of {args.seconds:g} s phases)")
+    print()
+    print(f"- CPU: {before['cpu']}; Python {before['python']}, onnxruntime {before['onnxruntime']}, "
+          f"numpy {before['numpy']}; servers T2M_INTRA_OP_THREADS={args.intra_op_threads}, continuous batching")
+    print(f"- load average (1, 5, 15 min): {before['load_average']} before, {after['load_average']} after")
+    if args.before_code:
+        print(f"- before: the code in {args.before_code} (its own defaults); after: this checkout")
+    print(f"- command: python benchmarks/step_order.py {' '.join(argv if argv is not None else sys.argv[1:])}")
+    print(f"- short: 2 s, one sentence, one probe client pausing {args.probe_pause_ms:g} ms between requests; long: "
+          f"30 s as 3 x 10 s sentences, {args.long_clients} clients back to back; 16 clients: 10 s, one sentence")
+    print()
+    print(format_table(pooled))
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps({"machine": {"before": before, "after": after}, "args": vars(args),
+                                                   "results": [{"server": m, "phase": p, "kind": k, **r.summary(),
+                                                                "p90_ms": r.percentile(90)}
+                                                               for (m, p, k), r in pooled.items()]}, indent=2))
+    return 1 if any(r.status_5xx or r.connection_errors for r in pooled.values()) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
