@@ -255,10 +255,12 @@ class Cohort:
     def shortest_job_steps(self) -> int:
         """The size of its smallest unfinished job, in steps (its longest segment; a free one counts as max_tokens):
         what a scheduler that runs short requests first compares (t2m.service.engine.step_order)."""
-        return min((max(self.max_tokens if self.batch.segments[s].target is None else self.batch.segments[s].target
-                        for s in indices)
-                    for indices in self.batch.of_job if not all(self.batch.segments[s].done for s in indices)),
-                   default=0)
+        def size(indices: list[int]) -> int:
+            targets = (self.batch.segments[s].target for s in indices)
+            return max(self.max_tokens if target is None else target for target in targets)
+
+        return min((size(indices) for indices in self.batch.of_job
+                    if not all(self.batch.segments[s].done for s in indices)), default=0)
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> None:
         """One time step for every live row (the family's network calls); `on_step(rows)` after each call."""
