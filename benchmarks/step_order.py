@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import json
 import random
 import sys
@@ -76,9 +77,8 @@ async def run_phase(url: str, phase: str, seconds: float, *, long_clients: int, 
         tasks = []
         for k, (kind, (n, pause)) in enumerate(users.items()):
             for i in range(n):
-                rng = random.Random(seed * 10_000 + k * 1000 + i)
-                tasks.append(_client(client, url, lambda rng=rng, kind=kind: _body(rng, kind), results[kind],
-                                     deadline, pause))
+                make_body = functools.partial(_body, random.Random(seed * 10_000 + k * 1000 + i), kind)
+                tasks.append(_client(client, url, make_body, results[kind], deadline, pause))
         await asyncio.gather(*tasks)
         for result in results.values():
             result.seconds = time.monotonic() - started
