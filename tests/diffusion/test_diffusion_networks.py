@@ -8,6 +8,8 @@ import torch
 
 from t2m.model.networks.diffusion import MDM, DiffusionConfig, released_weights
 
+torch.set_num_threads(1)
+
 E, F = 512, 263
 
 
