@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -188,6 +188,10 @@ def start(job: DiffusionJob, schedule: Schedule, features: int) -> None:
         raise ValueError(f"a job needs at least one frame, got {job.frames}")
     if (job.known is None) != (job.known_mask is None):
         raise ValueError("inpainting needs both known values and their mask")
+    if job.known is not None and job.known_mask is not None:
+        shape = (job.frames, features)
+        if job.known.shape != shape or np.broadcast_shapes(job.known_mask.shape, shape) != shape:
+            raise ValueError(f"known values {job.known.shape} / mask {job.known_mask.shape} do not fit {shape}")
     job.x = job.draw((job.frames, features))
     job.t = schedule.steps - 1
 
@@ -216,20 +220,28 @@ def _batch_prefix(jobs: Sequence[DiffusionJob]) -> np.ndarray | None:
     return np.stack(prefixes).astype(np.float32)
 
 
-def _denoiser_rows(jobs: Sequence[DiffusionJob],
-                   features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-    """The batch of one step: each job's conditional row, then a null row (zero text, same mask) for each guided
-    job; x_t zero-padded to the longest job."""
-    guided_jobs = [job for job in jobs if job.guidance != 1.0]
-    rows = list(jobs) + guided_jobs
+class _Rows(NamedTuple):
+    """The Denoiser's arguments, in its order."""
+
+    x_t: np.ndarray
+    t: np.ndarray
+    text: np.ndarray
+    text_mask: np.ndarray | None
+    length: np.ndarray
+    prefix: np.ndarray | None
+
+
+def _denoiser_rows(jobs: Sequence[DiffusionJob], features: int) -> _Rows:
+    """The inputs of one step's call: each job's conditional row, then a null row (zero text, same mask and
+    prefix) for each guided job; x_t zero-padded to the longest job."""
+    rows = list(jobs) + [job for job in jobs if job.guidance != 1.0]
     x = np.zeros((len(rows), max(job.frames for job in jobs), features), np.float32)
     for row, job in enumerate(rows):
         x[row, : job.frames] = job.x
     text, mask = _batch_text(rows)
     text[len(jobs):] = 0.0
-    t = np.array([job.t for job in rows], np.int64)
-    length = np.array([job.frames for job in rows], np.int64)
-    return x, t, text, mask, length
+    return _Rows(x, np.array([job.t for job in rows], np.int64), text, mask,
+                 np.array([job.frames for job in rows], np.int64), _batch_prefix(rows))
 
 
 def denoise_step(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[DiffusionJob]) -> None:
@@ -237,12 +249,7 @@ def denoise_step(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[Diffusio
     jobs = [job for job in jobs if job.t >= 0]
     if not jobs:
         return
-    features = jobs[0].x.shape[1]
-    x, t, text, mask, length = _denoiser_rows(jobs, features)
-    prefix = _batch_prefix(jobs)
-    if prefix is not None and len(x) > len(jobs):
-        prefix = np.concatenate([prefix, prefix[[i for i, job in enumerate(jobs) if job.guidance != 1.0]]])
-    x0 = np.asarray(denoiser(x, t, text, mask, length, prefix), np.float32)
+    x0 = np.asarray(denoiser(*_denoiser_rows(jobs, jobs[0].x.shape[1])), np.float32)
     null_row = len(jobs)
     for row, job in enumerate(jobs):
         prediction = x0[row, : job.frames]

@@ -142,9 +142,13 @@ def test_inpainting_known_values_come_out_exactly(steps):
     assert np.abs(free[in_between] - known[in_between]).max() > 1e-2
 
 
-def test_inpainting_needs_values_and_mask():
+def test_inpainting_needs_values_and_mask_of_the_motions_shape():
     with pytest.raises(ValueError):
         run([job(known=np.zeros((5, F), np.float32))])
+    with pytest.raises(ValueError):
+        run([job(known=np.zeros((4, F), np.float32), known_mask=np.ones((4, F), bool))])
+    with pytest.raises(ValueError):
+        run([job(known=np.zeros((5, F), np.float32), known_mask=np.ones((5, 1, F), bool))])
 
 
 def test_same_seed_same_motion():
