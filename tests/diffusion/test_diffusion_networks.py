@@ -72,10 +72,36 @@ def test_released_hyper_parameters():
     assert (mdm.arch, mdm.text_dim, mdm.text_tokens, mdm.diffusion_steps) == ("trans_enc", 512, False, 1000)
     assert (dip.arch, dip.text_dim, dip.text_tokens, dip.diffusion_steps) == ("trans_dec", 768, True, 10)
     assert (dip.context_len, dip.pred_len) == (20, 40)
-    for layer in (meta_model(mdm).seqTransEncoder.layers[0], meta_model(dip).seqTransDecoder.layers[0]):
-        assert not layer.norm_first and not layer.self_attn.batch_first      # post-norm, sequence first
-        assert layer.activation is torch.nn.functional.gelu                  # exact GELU
-        assert layer.dropout.p == 0.1
+
+
+@torch.no_grad()
+@pytest.mark.parametrize("decoder", [False, True])
+def test_layers_compute_what_torchs_transformer_layers_compute(decoder):
+    """The written-out layers under torch's names: load a torch post-norm GELU layer's state dict strictly and give
+    its outputs (with key masks), so the released weights mean what they meant to the official nn.Transformer*."""
+    torch.manual_seed(1)
+    layer_type = torch.nn.TransformerDecoderLayer if decoder else torch.nn.TransformerEncoderLayer
+    theirs = layer_type(16, 2, 32, 0.1, "gelu").eval()                    # sequence first, post-norm
+    model = tiny(arch="trans_dec" if decoder else "trans_enc", text_tokens=decoder)
+    ours = (model.seqTransDecoder if decoder else model.seqTransEncoder).layers[0]
+    ours.load_state_dict(theirs.state_dict())
+    x, memory = torch.randn(2, 6, 16), torch.randn(2, 4, 16)
+    keys = torch.tensor([[True] * 6, [True] * 4 + [False] * 2])
+    memory_keys = torch.tensor([[True] * 4, [True, True, False, False]])
+    if decoder:
+        expected = theirs(x.transpose(0, 1), memory.transpose(0, 1), tgt_key_padding_mask=~keys,
+                          memory_key_padding_mask=~memory_keys).transpose(0, 1)
+        got = ours(x, keys, memory, memory_keys)
+    else:
+        expected = theirs(x.transpose(0, 1), src_key_padding_mask=~keys).transpose(0, 1)
+        got = ours(x, keys)
+    torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
+    # control: the same weights under another layer order (pre-norm) are another function
+    pre_norm = layer_type(16, 2, 32, 0.1, "gelu", norm_first=True).eval()
+    pre_norm.load_state_dict(theirs.state_dict())
+    other = (pre_norm(x.transpose(0, 1), memory.transpose(0, 1)) if decoder
+             else pre_norm(x.transpose(0, 1))).transpose(0, 1)
+    assert (other - ours(x, None, memory, None) if decoder else other - ours(x, None)).abs().max() > 1e-2
 
 
 def test_config_from_args_json():
@@ -134,7 +160,7 @@ def manual_trans_enc(model: MDM, x: torch.Tensor, t: torch.Tensor, text: torch.T
     condition = model.embed_timestep.time_embed(pe[t]) + model.embed_text(text)          # [B, E]
     frames = model.input_process.poseEmbedding(x)                                          # [B, T, E]
     sequence = torch.cat([condition[:, None], frames], dim=1) + pe[: x.shape[1] + 1]
-    out = model.seqTransEncoder(sequence.transpose(0, 1)).transpose(0, 1)[:, 1:]
+    out = model.seqTransEncoder(sequence, None)[:, 1:]
     return model.output_process.poseFinal(out)
 
 
@@ -215,3 +241,5 @@ def test_eval_is_deterministic_and_token_states_need_a_mask():
         model(x, t, text)
     with pytest.raises(ValueError):
         DiffusionConfig(text_tokens=True)           # trans_enc + token states: the official code asserts
+    with pytest.raises(ValueError):
+        DiffusionConfig(activation="relu")

@@ -9,8 +9,8 @@ strictly (docs: ../shared/docs/diffusion-models.md §1, §4.3):
                                                                        recomputed on load
     embed_timestep.time_embed.{0,2} Linear(E, E), SiLU, Linear(E, E)   applied to pe[t], t the integer step
     embed_text                     Linear(Dt -> E)                     the text condition (CLIP 512, DistilBERT 768)
-    seqTransEncoder.layers.{i}     post-norm nn.TransformerEncoderLayer (arch trans_enc, MDM)
-    seqTransDecoder.layers.{i}     post-norm nn.TransformerDecoderLayer (arch trans_dec, DiP)
+    seqTransEncoder.layers.{i}     post-norm encoder layers (arch trans_enc, MDM)    nn.TransformerEncoderLayer's
+    seqTransDecoder.layers.{i}     post-norm decoder layers (arch trans_dec, DiP)    and ...DecoderLayer's names
     output_process.poseFinal       Linear(E -> F)
 
 - ``trans_enc``: the condition token (time embedding + projected text feature) is prepended at position 0, the
@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from t2m.model.networks.config import ConfigDict
@@ -74,6 +75,8 @@ class DiffusionConfig(ConfigDict):
     def __post_init__(self) -> None:
         self._require_positive("features", "latent_dim", "layers", "ff_size", "heads", "text_dim",
                                "pos_embed_max_len", "diffusion_steps")
+        if self.activation != "gelu":
+            raise ValueError(f"activation must be 'gelu' (the released models' constant), got {self.activation!r}")
         if self.arch not in ARCHS:
             raise ValueError(f"arch must be one of {', '.join(ARCHS)}, got {self.arch!r}")
         if self.text_tokens and self.arch != "trans_dec":
@@ -144,33 +147,33 @@ def released_weights(checkpoint: Mapping[str, Any], use_ema: bool) -> dict[str, 
 
 
 class InputProcess(nn.Module):
-    """Frames [B, T, F] -> tokens [T, B, E] (sequence first, as the official transformer runs)."""
+    """Frames [B, T, F] -> tokens [B, T, E]."""
 
     def __init__(self, features: int, latent_dim: int) -> None:
         super().__init__()
         self.poseEmbedding = nn.Linear(features, latent_dim)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.poseEmbedding(x.transpose(0, 1))
+        return self.poseEmbedding(x)
 
 
 class OutputProcess(nn.Module):
-    """Tokens [T, B, E] -> frames [B, T, F]."""
+    """Tokens [B, T, E] -> frames [B, T, F]."""
 
     def __init__(self, features: int, latent_dim: int) -> None:
         super().__init__()
         self.poseFinal = nn.Linear(latent_dim, features)
 
     def forward(self, h: torch.Tensor) -> torch.Tensor:
-        return self.poseFinal(h).transpose(0, 1)
+        return self.poseFinal(h)
 
 
 class PositionalEncoding(nn.Module):
-    """Adds pe[0..S-1] to a sequence [S, B, E], then dropout. The table is torch's float32 sinusoids (a float64
+    """Adds pe[0..S-1] to a sequence [B, S, E], then dropout. The table is torch's float32 sinusoids (a float64
     table differs by up to 4e-4 over 5000 rows); a loaded table is replaced by this one, as the official loader
     recomputes it."""
 
-    pe: torch.Tensor  # buffer [max_len, 1, E]
+    pe: torch.Tensor  # buffer [max_len, 1, E] (the released shape)
 
     def __init__(self, latent_dim: int, dropout: float, max_len: int) -> None:
         super().__init__()
@@ -182,11 +185,11 @@ class PositionalEncoding(nn.Module):
         state_dict[prefix + "pe"] = self.pe
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.dropout(x + self.pe[: x.shape[0]])
+        return self.dropout(x + self.pe[: x.shape[1], 0])
 
 
 class TimestepEmbedder(nn.Module):
-    """Integer steps [B] -> [1, B, E]: the MLP of the same sinusoid table the positions use, row t."""
+    """Integer steps [B] -> [B, 1, E]: the MLP of the same sinusoid table the positions use, row t."""
 
     def __init__(self, latent_dim: int, sequence_pos_encoder: PositionalEncoding) -> None:
         super().__init__()
@@ -195,14 +198,96 @@ class TimestepEmbedder(nn.Module):
                                         nn.Linear(latent_dim, latent_dim))
 
     def forward(self, timesteps: torch.Tensor) -> torch.Tensor:
-        return self.time_embed(self.sequence_pos_encoder.pe[timesteps]).permute(1, 0, 2)
+        return self.time_embed(self.sequence_pos_encoder.pe[timesteps])
 
 
-def _prepend_valid(padding: torch.Tensor | None) -> torch.Tensor | None:
-    """A key-padding mask [B, S] with one never-padded column in front (the condition or time token)."""
-    if padding is None:
+# The transformer layers compute what torch's nn.TransformerEncoderLayer / nn.TransformerDecoderLayer (post-norm,
+# exact GELU, eval: no dropout) compute, under their parameter names (the released keys); they are written out, as
+# in token_transformer.py, because torch's modules trace to ONNX graphs whose sequence length is fixed at export.
+
+
+class Attention(nn.Module):
+    """nn.MultiheadAttention's parameters (q/k/v packed in ``in_proj_weight`` [3E, E], rows q, k, v; ``out_proj``)
+    and arithmetic, batch first: queries from x [B, S, E], keys and values from source [B, S', E]; ``keys`` [B, S']
+    bool, False = may not be attended to."""
+
+    def __init__(self, dim: int, heads: int, dropout: float) -> None:
+        super().__init__()
+        self.heads, self.dropout = heads, dropout
+        self.in_proj_weight = nn.Parameter(nn.init.xavier_uniform_(torch.empty(3 * dim, dim)))
+        self.in_proj_bias = nn.Parameter(torch.zeros(3 * dim))
+        self.out_proj = nn.Linear(dim, dim)
+        nn.init.zeros_(self.out_proj.bias)
+
+    def _heads(self, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+        """[B, S, E] -> projected [B, H, S, E/H]"""
+        return F.linear(x, weight, bias).unflatten(-1, (self.heads, -1)).transpose(1, 2)
+
+    def forward(self, x: torch.Tensor, source: torch.Tensor, keys: torch.Tensor | None) -> torch.Tensor:
+        weights, biases = self.in_proj_weight.chunk(3), self.in_proj_bias.chunk(3)
+        q = self._heads(x, weights[0], biases[0])
+        k, v = self._heads(source, weights[1], biases[1]), self._heads(source, weights[2], biases[2])
+        mask = None if keys is None else keys[:, None, None, :]
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.dropout if self.training else 0.0)
+        return self.out_proj(y.transpose(1, 2).flatten(2))
+
+
+class EncoderLayer(nn.Module):
+    """x = norm1(x + self_attn(x)); x = norm2(x + linear2(gelu(linear1(x))))."""
+
+    def __init__(self, dim: int, heads: int, ff_size: int, dropout: float) -> None:
+        super().__init__()
+        self.self_attn = Attention(dim, heads, dropout)
+        self.linear1 = nn.Linear(dim, ff_size)
+        self.linear2 = nn.Linear(ff_size, dim)
+        self.norm1 = nn.LayerNorm(dim)
+        self.norm2 = nn.LayerNorm(dim)
+        self.dropout = nn.Dropout(dropout)
+
+    def feed_forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.dropout(self.linear2(self.dropout(F.gelu(self.linear1(x)))))
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor | None) -> torch.Tensor:
+        x = self.norm1(x + self.dropout(self.self_attn(x, x, keys)))
+        return self.norm2(x + self.feed_forward(x))
+
+
+class DecoderLayer(EncoderLayer):
+    """x = norm1(x + self_attn(x)); x = norm2(x + multihead_attn(x, memory)); x = norm3(x + feed-forward(x))."""
+
+    def __init__(self, dim: int, heads: int, ff_size: int, dropout: float) -> None:
+        super().__init__(dim, heads, ff_size, dropout)
+        self.multihead_attn = Attention(dim, heads, dropout)
+        self.norm3 = nn.LayerNorm(dim)
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor | None, memory: torch.Tensor | None = None,
+                memory_keys: torch.Tensor | None = None) -> torch.Tensor:
+        assert memory is not None
+        x = self.norm1(x + self.dropout(self.self_attn(x, x, keys)))
+        x = self.norm2(x + self.dropout(self.multihead_attn(x, memory, memory_keys)))
+        return self.norm3(x + self.feed_forward(x))
+
+
+class TransformerStack(nn.Module):
+    """``layers.{i}`` (nn.TransformerEncoder / nn.TransformerDecoder's key names; no final norm)."""
+
+    def __init__(self, layer: type[EncoderLayer], config: DiffusionConfig) -> None:
+        super().__init__()
+        c = config
+        self.layers = nn.ModuleList(layer(c.latent_dim, c.heads, c.ff_size, c.dropout) for _ in range(c.layers))
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor | None, memory: torch.Tensor | None = None,
+                memory_keys: torch.Tensor | None = None) -> torch.Tensor:
+        for layer in self.layers:
+            x = layer(x, keys) if memory is None else layer(x, keys, memory, memory_keys)
+        return x
+
+
+def _prepend_valid(keys: torch.Tensor | None) -> torch.Tensor | None:
+    """A key mask [B, S] with one always-attendable column in front (the condition or time token)."""
+    if keys is None:
         return None
-    return torch.cat([torch.zeros_like(padding[:, :1]), padding], dim=1)
+    return torch.cat([torch.ones_like(keys[:, :1]), keys], dim=1)
 
 
 class MDM(nn.Module):
@@ -215,11 +300,9 @@ class MDM(nn.Module):
         self.input_process = InputProcess(c.features, c.latent_dim)
         self.sequence_pos_encoder = PositionalEncoding(c.latent_dim, c.dropout, c.pos_embed_max_len)
         if c.arch == "trans_enc":
-            layer = nn.TransformerEncoderLayer(c.latent_dim, c.heads, c.ff_size, c.dropout, c.activation)
-            self.seqTransEncoder = nn.TransformerEncoder(layer, c.layers, enable_nested_tensor=False)
+            self.seqTransEncoder = TransformerStack(EncoderLayer, c)
         else:
-            decoder_layer = nn.TransformerDecoderLayer(c.latent_dim, c.heads, c.ff_size, c.dropout, c.activation)
-            self.seqTransDecoder = nn.TransformerDecoder(decoder_layer, c.layers)
+            self.seqTransDecoder = TransformerStack(DecoderLayer, c)
         self.embed_timestep = TimestepEmbedder(c.latent_dim, self.sequence_pos_encoder)
         self.embed_text = nn.Linear(c.text_dim, c.latent_dim)
         self.output_process = OutputProcess(c.features, c.latent_dim)
@@ -237,38 +320,36 @@ class MDM(nn.Module):
         if prefix is not None:
             x = torch.cat([prefix, x], dim=1)
             length = None if length is None else length + prefix.shape[1]
-        h = self.input_process(x)                                  # [S, B, E]
-        padding = self._frame_padding(length, h.shape[0])
-        time = self.embed_timestep(timesteps)                      # [1, B, E]
+        h = self.input_process(x)                                  # [B, S, E]
+        keys = self._frame_keys(length, h.shape[1])
+        time = self.embed_timestep(timesteps)                      # [B, 1, E]
         if self.config.arch == "trans_enc":
-            condition = time + self.embed_text(text)[None]
-            sequence = self.sequence_pos_encoder(torch.cat([condition, h]))
-            out = self.seqTransEncoder(sequence, src_key_padding_mask=_prepend_valid(padding))[1:]
+            condition = time + self.embed_text(text)[:, None]
+            sequence = self.sequence_pos_encoder(torch.cat([condition, h], dim=1))
+            out = self.seqTransEncoder(sequence, _prepend_valid(keys))[:, 1:]
         else:
-            out = self._decode(h, time, text, text_mask, padding)
+            out = self._decode(h, time, text, text_mask, keys)
         return self.output_process(out)[:, -frames:]
 
     def _decode(self, h: torch.Tensor, time: torch.Tensor, text: torch.Tensor, text_mask: torch.Tensor | None,
-                padding: torch.Tensor | None) -> torch.Tensor:
+                keys: torch.Tensor | None) -> torch.Tensor:
         """trans_dec: frames (after a time token with emb_trans_dec) attend to the text memory."""
         if self.config.text_tokens:
             if text_mask is None:
                 raise ValueError("token-state text needs text_mask [B, L]")
-            memory = self.embed_text(text).transpose(0, 1) + time   # [L, B, E]
-            memory_padding: torch.Tensor | None = ~text_mask.bool()
+            memory, memory_keys = self.embed_text(text) + time, text_mask.bool()      # [B, L, E]
         else:
-            memory, memory_padding = time + self.embed_text(text)[None], None
+            memory, memory_keys = time + self.embed_text(text)[:, None], None
         if self.config.emb_trans_dec:
-            target = self.sequence_pos_encoder(torch.cat([time, h]))
-            padding = _prepend_valid(padding)
+            target = self.sequence_pos_encoder(torch.cat([time, h], dim=1))
+            keys = _prepend_valid(keys)
         else:
             target = self.sequence_pos_encoder(h)
-        out = self.seqTransDecoder(target, memory, tgt_key_padding_mask=padding,
-                                   memory_key_padding_mask=memory_padding)
-        return out[1:] if self.config.emb_trans_dec else out
+        out = self.seqTransDecoder(target, keys, memory, memory_keys)
+        return out[:, 1:] if self.config.emb_trans_dec else out
 
-    def _frame_padding(self, length: torch.Tensor | None, frames: int) -> torch.Tensor | None:
-        """[B, S] True past each row's length, when the model masks frames (and, as officially, S > 1)."""
+    def _frame_keys(self, length: torch.Tensor | None, frames: int) -> torch.Tensor | None:
+        """[B, S] True up to each row's length, when the model masks frames (and, as officially, S > 1)."""
         if not self.config.mask_frames or length is None or frames <= 1:
             return None
-        return torch.arange(frames, device=length.device)[None, :] >= length[:, None]
+        return torch.arange(frames, device=length.device)[None, :] < length[:, None]
