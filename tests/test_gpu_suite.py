@@ -49,3 +49,54 @@ def test_gpu_suite_says_what_is_missing_for_cuda(tmp_path):
     assert result.returncode == 3
     assert "missing: onnxruntime" in result.stdout and "missing: torch" in result.stdout
     assert "no table" in result.stdout
+
+
+def _git(repo: Path, *args: str) -> str:
+    return subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True, text=True).stdout
+
+
+def test_the_wheel_travels_in_parts_and_comes_together_byte_for_byte(tmp_path):
+    """benchmarks/gpu_transport.sh on a fake wheel in a scratch repository: prepare splits the CUDA provider into
+    parts of PART_MB, keep + unpack (what the device calls run) rebuild every file of the wheel exactly; slim takes
+    the bundles out of git's index only (the files stay) and restore puts them back."""
+    import os
+    import zipfile
+
+    repo = tmp_path / "repo"
+    (repo / "benchmarks").mkdir(parents=True)
+    (repo / "benchmarks" / "gpu_transport.sh").write_bytes((REPO / "benchmarks" / "gpu_transport.sh").read_bytes())
+    for bundle in ("default", "gpt", "masked"):
+        (repo / "t2m" / "bundles" / bundle).mkdir(parents=True)
+        (repo / "t2m" / "bundles" / bundle / "manifest.json").write_text("{}")
+    _git(repo, "init", "-q")
+    _git(repo, "add", ".")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "scratch")
+    files = {"onnxruntime/capi/libonnxruntime_providers_cuda.so": os.urandom(3_000_000),
+             "onnxruntime/__init__.py": b"__version__ = '0'\n",
+             "onnxruntime_gpu-0.dist-info/METADATA": b"Name: onnxruntime-gpu\n"}
+    wheel = tmp_path / "onnxruntime_gpu-0-cp312-cp312-manylinux_2_28_x86_64.whl"
+    with zipfile.ZipFile(wheel, "w") as archive:
+        for name, data in files.items():
+            archive.writestr(name, data)
+    script = ["bash", "benchmarks/gpu_transport.sh"]
+    env = {"PATH": "/usr/bin:/bin", "PART_MB": "1", "HOME": str(tmp_path)}
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([*script, *args], cwd=repo, env=env, capture_output=True, text=True)
+
+    assert run("prepare", str(wheel)).returncode == 0
+    parts = sorted(p.name for p in (repo / ".gpu").glob("cuda.xz.part-*"))
+    assert len(parts) == 3          # 3 MB of random bytes do not compress: three 1 MB parts
+    assert "/.gpu/" in (repo / ".git" / "info" / "exclude").read_text()
+    assert run("keep", str(tmp_path / "kept")).returncode == 0
+    assert run("unpack", str(tmp_path / "kept"), str(tmp_path / "site")).returncode == 0
+    for name, data in files.items():
+        assert (tmp_path / "site" / name).read_bytes() == data, name
+    assert run("slim").returncode == 0
+    assert not [f for f in _git(repo, "ls-files").split() if f.startswith("t2m/bundles/")]
+    assert (repo / "t2m" / "bundles" / "gpt" / "manifest.json").exists()
+    assert run("restore").returncode == 0
+    assert len([f for f in _git(repo, "ls-files").split() if f.startswith("t2m/bundles/")]) == 3
+    assert _git(repo, "status", "--porcelain") == ""
+    bad = run("prepare", str(tmp_path / "missing.whl"))
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "no wheel" in bad.stderr
