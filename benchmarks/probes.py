@@ -9,6 +9,8 @@ pelvis velocity jump at each join is compared with the changes inside the segmen
     python benchmarks/probes.py                                  # t2m/bundles/default, 5 seeds, the model's guidance
     python benchmarks/probes.py --bundle DIR --seeds 5 --guidance 3 --json-out artifacts/probes.json
     python benchmarks/probes.py --real-clips DATASET_DIR --per-content 20   # on motion capture (the archive's dataset/)
+    python benchmarks/probes.py --probes jump,invert,get_up       # the CMU actions' probes (issue 28) on a model
+    python benchmarks/probes.py --cmu-clips data/cmu              # ... and on the captioned CMU clips (t2m data build)
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the repo's packages importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from t2m.model.evaluation.action_probes import ACTION_PROBES
 from t2m.model.evaluation.probes import PROBES, STREAM, ProbeSpec, join_smoothness, probe_by_name
 from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
 
@@ -38,6 +41,7 @@ __all__ = [
     "StreamSummary",
     "Trial",
     "calibrate_on_clips",
+    "calibrate_on_cmu",
     "format_calibration",
     "format_report",
     "generate",
@@ -281,6 +285,33 @@ def calibrate_on_clips(dataset_dir: str | Path, per_content: int = 20, seconds: 
     return rates, {content: len(clips) for content, clips in joints.items()}
 
 
+# which CMU sentences ask for each action probe's action (the calibration's "own" clips)
+CMU_ACTIONS = {"jump": r"\bjump|\bhop", "invert": r"cartwheel|handstand|flip|somersault",
+               "get_up": r"gets? up|stands? up|pushes himself up|rises? from"}
+
+
+def calibrate_on_cmu(data_dir: str | Path) -> dict[str, dict[str, float | int]]:
+    """Each action probe on every clip of a CMU build (t2m data build; whole clips as cut by their sentences): its
+    pass rate on the clips whose sentences ask for its action, and on all the others."""
+    import re
+
+    root = Path(data_dir)
+    names = sorted(path.stem for path in (root / "new_joints").glob("*.npy"))
+    if not names:
+        raise FileNotFoundError(f"no clips under {root}/new_joints (build it: t2m data build --source "
+                                "<cmu-captioned-motion.tar.xz> --out DIR)")
+    clips = [(np.load(root / "new_joints" / f"{name}.npy"), (root / "texts" / f"{name}.txt").read_text().lower())
+             for name in names]
+    out: dict[str, dict[str, float | int]] = {}
+    for spec in ACTION_PROBES:
+        own = [bool(spec.check(joints).passed) for joints, text in clips if re.search(CMU_ACTIONS[spec.name], text)]
+        other = [bool(spec.check(joints).passed) for joints, text in clips
+                 if not re.search(CMU_ACTIONS[spec.name], text)]
+        out[spec.name] = {"own_rate": float(np.mean(own)) if own else float("nan"), "own_clips": len(own),
+                          "other_rate": float(np.mean(other)) if other else float("nan"), "other_clips": len(other)}
+    return out
+
+
 def format_calibration(rates: dict[str, dict[str, float]], counts: dict[str, int], seconds: float) -> str:
     contents = [content for content in CALIBRATION_CONTENTS if counts.get(content)]
     lines = [f"### Probes on real Bandai-Namco clips (first {seconds:g} s; clips per label: "
@@ -291,6 +322,18 @@ def format_calibration(rates: dict[str, dict[str, float]], counts: dict[str, int
         cells = [f"**{row[c]:.2f}**" if c in own[name] else f"{row[c]:.2f}" for c in contents]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _spec(name: str) -> ProbeSpec:
+    """A probe of the default set or of the CMU actions' set, by name."""
+    for spec in ACTION_PROBES:
+        if spec.name == name:
+            return spec
+    try:
+        return probe_by_name(name)
+    except ValueError:
+        raise ValueError(f"probe: unknown probe {name!r}; known: "
+                         f"{', '.join(spec.name for spec in (*PROBES, *ACTION_PROBES))}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -307,8 +350,22 @@ def main(argv: list[str] | None = None) -> int:
                         help="instead of a model: the probes on real Bandai-Namco clips under DATASET_DIR (the "
                              "unpacked archive's dataset/), per content label")
     parser.add_argument("--per-content", type=int, default=20, help="with --real-clips: clips per content label")
+    parser.add_argument("--cmu-clips", default=None, metavar="DATA_DIR",
+                        help="instead of a model: the CMU actions' probes (jump, invert, get_up) on a CMU build")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    if args.cmu_clips:
+        try:
+            rates = calibrate_on_cmu(args.cmu_clips)
+        except FileNotFoundError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        print("| probe | its own clips: pass rate (clips) | the other clips: pass rate (clips) |")
+        print("| --- | ---: | ---: |")
+        for name, row in rates.items():
+            print(f"| {name} | {row['own_rate']:.2f} ({row['own_clips']}) | {row['other_rate']:.2f} "
+                  f"({row['other_clips']}) |")
+        return 0
     if args.real_clips:
         try:
             rates, counts = calibrate_on_clips(args.real_clips, args.per_content, args.duration)
@@ -325,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0.2 <= args.duration <= 10.0:
         parser.error(f"--duration: {args.duration} is outside 0.2..10 s")
     try:
-        specs = PROBES if args.probes is None else [probe_by_name(name.strip()) for name in args.probes.split(",")]
+        specs = PROBES if args.probes is None else [_spec(name.strip()) for name in args.probes.split(",")]
         from t2m.service.engine.engine import OnnxEngine
 
         engine = OnnxEngine.load(args.bundle)
