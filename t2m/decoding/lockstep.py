@@ -168,11 +168,10 @@ def draw_for_jobs(logits: np.ndarray, rows: Rows, going: Sequence[tuple[Sampling
     segments = [s for _, active in going for s in active]
     if not segments:
         return [np.zeros(0, dtype=np.int64) for _ in going]
-    counts = [len(active) for _, active in going]
-    scale = np.repeat([job.guidance for job, _ in going], counts)
     cond = logits[[rows.cond[s] for s in segments]].astype(np.float64)
     chosen = cond
-    if (scale != 1.0).any():
+    if any(job.guidance != 1.0 for job, _ in going):
+        scale = np.array([job.guidance for job, active in going for _ in active])
         null = logits[[rows.null.get(s, rows.cond[s]) for s in segments]].astype(np.float64)
         chosen = np.where((scale != 1.0)[:, None], guided_logits(cond, null, scale[:, None]), cond)
     if forbid is not None:
@@ -180,7 +179,8 @@ def draw_for_jobs(logits: np.ndarray, rows: Rows, going: Sequence[tuple[Sampling
         chosen[np.asarray(mask, dtype=bool), forbidden] = -np.inf
     drawn = draw_tokens_of_jobs(chosen, [RowRule(len(active), job.temperature, job.top_k, job.rng, job.greedy)
                                          for job, active in going])
-    return np.split(drawn, np.cumsum(counts)[:-1])
+    ends = np.cumsum([len(active) for _, active in going]).tolist()
+    return [drawn[end - len(active):end] for (_, active), end in zip(going, ends)]
 
 
 def live_segments(batch: StepRows, jobs: Sequence[SamplingJob],

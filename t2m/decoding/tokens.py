@@ -54,16 +54,22 @@ def draw_tokens_of_jobs(logits: np.ndarray, rules: Sequence[RowRule]) -> np.ndar
     request's uniforms drawn from its own generator in row order); one pass of numpy instead of one per request,
     which is what a step of many requests on a CPU pays for."""
     logits = np.array(logits, dtype=np.float64)
-    counts = [rule.rows for rule in rules]
-    greedy = np.repeat([rule.greedy for rule in rules], counts).astype(bool)
+
+    def per_row(values: list) -> np.ndarray:
+        return np.array([value for rule, value in zip(rules, values) for _ in range(rule.rows)])
+
     choice = np.zeros(len(logits), dtype=np.int64)
+    greedy = per_row([rule.greedy for rule in rules]).astype(bool)
     if greedy.any():
         choice[greedy] = logits[greedy].argmax(axis=1)
-    drawn = ~greedy
-    if not drawn.any():
-        return choice
-    logits = logits[drawn] / np.repeat([rule.temperature for rule in rules], counts)[drawn, None]
-    top_ks = np.repeat([rule.top_k or 0 for rule in rules], counts)[drawn]
+        if greedy.all():
+            return choice
+        logits = logits[~greedy]
+    drawn_rules = [rule for rule in rules if not rule.greedy]
+    temperatures = [rule.temperature for rule in drawn_rules]
+    if any(t != 1.0 for t in temperatures):
+        logits /= np.array([t for rule, t in zip(drawn_rules, temperatures) for _ in range(rule.rows)])[:, None]
+    top_ks = np.array([rule.top_k or 0 for rule in drawn_rules for _ in range(rule.rows)])
     for top_k in set(top_ks.tolist()) - {0}:
         if top_k < logits.shape[1]:
             mine = logits[top_ks == top_k]
@@ -72,9 +78,9 @@ def draw_tokens_of_jobs(logits: np.ndarray, rules: Sequence[RowRule]) -> np.ndar
             logits[top_ks == top_k] = mine
     logits -= logits.max(axis=1, keepdims=True)
     cdf = np.cumsum(np.exp(logits), axis=1)
-    uniforms = np.concatenate([rule.rng.random(rule.rows) for rule in rules if not rule.greedy])
-    picked = (cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1)
-    choice[drawn] = np.minimum(picked, logits.shape[1] - 1)
+    uniforms = np.concatenate([rule.rng.random(rule.rows) for rule in drawn_rules])
+    picked = np.minimum((cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1), logits.shape[1] - 1)
+    choice[~greedy] = picked
     return choice
 
 
