@@ -22,6 +22,9 @@ IDS = ([f"dataset-2_walk_active_{i:03d}" for i in range(90)]
     ("dataset-1_kick_normal_001_p0", "kick"),
     ("012314", OTHER),
     ("synthetic_walk_3", OTHER),
+    ("bn-dataset-1_walk-back_happy_003", "walk-back"),                # a merged dataset's source prefix
+    ("Mbn-dataset-2_wave-left-hand_elderly_017", "wave-right-hand"),
+    ("cmu-01_01_002510", OTHER),                                      # no label in the id, no sentences given
 ])
 def test_item_action_reads_the_content_label(item_id, action):
     assert item_action(item_id) == action
@@ -68,3 +71,29 @@ def test_unweighted_bucket_sampler_still_visits_every_item_once():
     assert sorted(i for batch in batches for i in batch) == list(range(37))
     with pytest.raises(ValueError, match="weights"):
         LengthBucketSampler(counts, batch_size=8, weights=[1.0, 2.0])
+
+
+@pytest.mark.parametrize("sentences, action", [
+    (["a person jumped forward three times"], "jump"),
+    (["someone walks, then does a cartwheel"], "cartwheel"),         # the rarer action wins over the walk
+    (["a person is performing a ballet dance"], "dance"),
+    (["a person who is prone pushes himself up", "the man gets up from the floor"], "get-up"),
+    (["person sprints forward three steps"], "run"),
+    (["a man stands still"], OTHER),
+    ([], OTHER),
+])
+def test_items_without_a_label_are_grouped_by_their_sentences(sentences, action):
+    assert item_action("cmu-07_03_000100", sentences) == action
+    assert item_action("Mcmu-07_03_000100", sentences) == action
+
+
+def test_a_few_new_jumps_are_lifted_beside_many_walks():
+    """Merged Bandai-Namco + CMU ids (issue 28): the CMU jumps form their own action, so balancing lifts them; without
+    their sentences they would sink into one OTHER group with every CMU clip."""
+    ids = [f"bn-dataset-2_walk_active_{i:03d}" for i in range(300)] + [f"cmu-0{i}_01_000000" for i in range(4)] + \
+        [f"cmu-1{i}_02_000000" for i in range(6)]
+    sentences = {i: (["a person jumps up"] if i.startswith("cmu-0") else ["a person walks in a circle"]) for i in ids}
+    masses = action_masses(ids, balanced_weights(ids, 0.3, sentences.__getitem__), sentences.__getitem__)
+    assert set(masses) == {"walk", "jump"}
+    assert masses["jump"] == pytest.approx(4 ** 0.3 / (4 ** 0.3 + 306 ** 0.3))
+    assert set(action_masses(ids, balanced_weights(ids, 0.3))) == {"walk", OTHER}   # control: ids alone

@@ -61,6 +61,7 @@ class VQWindowDataset(Dataset):
         self.fixed_offsets = fixed_offsets
         self.clips: list[np.ndarray] = []
         self.ids: list[str] = []
+        self.captions_of = reader.captions   # id -> its sentences (action balancing)
         for clip_id in reader.ids:
             features = normalized_features(reader, clip_id)
             if features.shape[0] >= window:
@@ -134,6 +135,7 @@ class TextMotionDataset(Dataset):
         self.end_id, self.pad_id = codebook_size, codebook_size + 1
         self.items: list[tuple[np.ndarray, list[np.ndarray]]] = []
         self.ids: list[str] = []
+        self.captions_of = reader.captions   # id -> its sentences (action balancing)
         for clip_id in reader.ids:
             clip_codes = codes.get(clip_id)
             captions = [text_features[c] for c in reader.captions(clip_id) if c in text_features]

@@ -43,6 +43,7 @@ class TokenMapDataset(Dataset):
         self.max_tokens = max_tokens
         self.items: list[tuple[np.ndarray, list[np.ndarray]]] = []
         self.ids: list[str] = []
+        self.captions_of = reader.captions   # id -> its sentences (action balancing)
         for clip_id in reader.ids:
             clip_codes = codes.get(clip_id)
             captions = [text_features[c] for c in reader.captions(clip_id) if c in text_features]

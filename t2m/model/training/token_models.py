@@ -125,7 +125,7 @@ def prepare_data(args: argparse.Namespace, out: Path, min_layers: int = 1) -> To
     torch.manual_seed(args.seed + 1)
     val_batches = list(DataLoader(val_set, batch_size=args.batch_size, shuffle=False, generator=generator))[:8]
     torch.manual_seed(args.seed)
-    weights = run_sampling_weights(train_set.ids, args.balance_power, out)
+    weights = run_sampling_weights(train_set.ids, args.balance_power, out, train_set.captions_of)
     loader = DataLoader(train_set, batch_sampler=LengthBucketSampler(train_set.token_counts, args.batch_size,
                                                                      weights=weights))
     text_dim = text_features_dim(text_features)

@@ -219,7 +219,7 @@ def main(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed + 1)
     val_batches = list(val_loader)[:8]
     torch.manual_seed(args.seed)
-    weights = run_sampling_weights(train_set.ids, args.balance_power, out)
+    weights = run_sampling_weights(train_set.ids, args.balance_power, out, train_set.captions_of)
     loader = DataLoader(train_set, batch_sampler=LengthBucketSampler(train_set.token_counts, args.batch_size,
                                                                      weights=weights))
     settings = LoopSettings(

@@ -157,7 +157,7 @@ def window_loader(train_set: Any, batch_size: int, balance_power: float, out: Pa
     from t2m.model.data.balancing import run_sampling_weights
 
     drop_last = len(train_set) >= batch_size
-    weights = run_sampling_weights(train_set.ids, balance_power, out)
+    weights = run_sampling_weights(train_set.ids, balance_power, out, train_set.captions_of)
     if weights is None:
         return DataLoader(train_set, batch_size=batch_size, shuffle=True, drop_last=drop_last)
     sampler = WeightedRandomSampler(weights.tolist(), num_samples=len(train_set), replacement=True)
