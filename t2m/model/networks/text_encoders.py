@@ -65,6 +65,14 @@ class TextEncoder(ABC):
         return np.concatenate(chunks).astype(np.float32)
 
 
+def tokenize_batch(tokenizer: Tokenizer, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+    """texts -> (input_ids, attention_mask) int64 [N, L] with the tokenizer's own truncation and padding."""
+    encodings = tokenizer.encode_batch(list(texts))
+    input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
+    attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
+    return input_ids, attention_mask
+
+
 class TokenizedTextEncoder(TextEncoder):
     """An encoder made of a `tokenizers` Tokenizer (already set to the encoder's truncation and padding) and a torch
     module over its ids: tokenize, export and save the tokenizer the same way for MiniLM and CLIP."""
@@ -73,10 +81,7 @@ class TokenizedTextEncoder(TextEncoder):
     module: nn.Module
 
     def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        encodings = self.tokenizer.encode_batch(list(texts))
-        input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
-        attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
-        return input_ids, attention_mask
+        return tokenize_batch(self.tokenizer, texts)
 
     def export_module(self) -> nn.Module:
         return self.module
