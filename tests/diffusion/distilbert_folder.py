@@ -15,13 +15,13 @@ RELEASE = {"vocab_size": 30522, "max_position_embeddings": 512, "dim": 768, "n_l
 SPECIAL = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]"]
 WORDS = ("a person walks forward slowly then turns around man jumps up and down twice someone waves with the right "
          "hand while standing still runs in circle stops woman sits on chair stands again kicks left leg raises both "
-         "arms backwards bows he dances happily spinning to tired limps she throws ball her crouches , . !").split()
+         "arms backwards bows he dances happily spinning to tired limps she throws ball her crouches , . !")
 
 
 def tiny_vocab() -> list[str]:
     """[PAD] = 0, [UNK], [CLS], [SEP], [MASK], the letters with and without '##', some motion words."""
     letters = [chr(c) for c in range(ord("a"), ord("z") + 1)]
-    return SPECIAL + letters + ["##" + c for c in letters] + sorted(set(WORDS) - set(letters))
+    return SPECIAL + letters + ["##" + c for c in letters] + sorted(set(WORDS.split()) - set(letters))
 
 
 def hub_state(sizes: dict[str, int], seed: int = 0, std: float = 0.05, mlm_head: bool = True,

@@ -70,7 +70,7 @@ def test_mdm_tokenization_keeps_20_tokens_and_the_end_token_last(mdm_clip):
 
 def test_mdm_feature_is_the_end_token_feature_at_77(mdm_clip):
     """MDM zero-pads the 22 ids to 77: the causal tower gives the same end-token feature."""
-    ids, mask = mdm_clip.tokenize(CAPTIONS)
+    ids, _ = mdm_clip.tokenize(CAPTIONS)
     padded = torch.cat([ids, torch.zeros(3, 77 - 22, dtype=ids.dtype)], dim=1)
     with torch.no_grad():
         at_77 = mdm_clip.module.encode_text(padded)
@@ -238,7 +238,8 @@ def test_distilbert_folder_refusals(tmp_path):
              "vocab_size": len(tiny_vocab())}
     state = hub_state(sizes)
     del state["distilbert.transformer.layer.1.ffn.lin2.bias"]
-    refuse(write_distilbert_folder(tmp_path / "d", state=state), "missing tensor 'transformer.layer.1.ffn.lin2.bias' [32]")
+    refuse(write_distilbert_folder(tmp_path / "d", state=state),
+           "missing tensor 'transformer.layer.1.ffn.lin2.bias' [32]")
     state = hub_state(sizes) | {"distilbert.pooler.weight": torch.zeros(2)}
     refuse(write_distilbert_folder(tmp_path / "e", state=state), "unexpected tensor 'distilbert.pooler.weight'")
     state = hub_state(sizes | {"hidden_dim": 48})

@@ -30,9 +30,9 @@ def check_dip_config(args: dict, config: DiffusionConfig, where: str) -> None:
         raise ValueError(f"{where}: context_len {config.context_len}: not a DiP release (no prefix completion); "
                          "import it with t2m import mdm")
     if config.arch != "trans_dec" or not config.text_tokens:
-        raise ValueError(f"{where}: arch {config.arch!r} with text_encoder_type {args.get('text_encoder_type', 'clip')!r}"
-                         ": DiP is trans_dec over DistilBERT token states ('bert'); the official sampler refuses a "
-                         "CLIP DiP's per-call texts")
+        encoder = args.get("text_encoder_type", "clip")
+        raise ValueError(f"{where}: arch {config.arch!r} with text_encoder_type {encoder!r}: DiP is trans_dec over "
+                         "DistilBERT token states ('bert'); the official sampler refuses a CLIP DiP's per-call texts")
 
 
 def load_dip_release(folder: str | Path | None, bert_dir: str | Path | None = None, *,

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from t2m.model.networks.clip_text import ClipTextTransformer
+from t2m.model.networks.clip_text import ClipTextTransformer, ResidualAttentionBlock
 from t2m.model.networks.distilbert import DistilBertTokenStates, build_wordpiece_tokenizer, load_distilbert
 from t2m.model.networks.text_encoders import MINILM_MAX_LENGTH, ClipEncoder, minilm_model_dir, tokenize_batch
 
@@ -45,6 +45,8 @@ class MdmClipEncoder(ClipEncoder):
     """MDM's CLIP text feature in float32: OpenAI's tokenizer cut to 22 ids (20 BPE tokens + start/end, the end
     token kept last), ``encode_text`` pooled at the end token, not normalised. The same text-graph contract as the
     other CLIP bundles (kind ``clip``, ``max_length`` 22)."""
+
+    module: ClipTextTransformer
 
     def __init__(self, weights: str | Path) -> None:
         from t2m.model.networks.clip_tokenizer import build_clip_tokenizer
@@ -71,6 +73,7 @@ def clip_encode_text_fp16(clip: ClipTextTransformer, input_ids: torch.Tensor) ->
     x = clip.token_embedding(input_ids).to(half) + clip.positional_embedding[:length].to(half)
     mask = clip.causal_mask[:length, :length].to(half)
     for block in clip.transformer.resblocks:
+        assert isinstance(block, ResidualAttentionBlock)
         attn, mlp = block.attn, block.mlp
         h = _layer_norm_fp32(block.ln_1, x)
         q, k, v = F.linear(h, attn.in_proj_weight.to(half), attn.in_proj_bias.to(half)).chunk(3, dim=-1)
