@@ -12,13 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from t2m.export.importers.mdm_files import (
-    ImportedDiffusion,
-    build_text_encoder,
-    load_denoiser,
-    locate_release,
-    read_checked_config,
-)
+from t2m.export.importers.mdm_files import ImportedDiffusion, load_release
 from t2m.model.networks.diffusion import DiffusionConfig
 
 __all__ = ["check_dip_config", "load_dip_release"]
@@ -39,9 +33,4 @@ def load_dip_release(folder: str | Path | None, bert_dir: str | Path | None = No
                      model_file: str | Path | None = None, allow_pickle: bool = False) -> ImportedDiffusion:
     """A DiP release folder + a DistilBERT folder -> (config, denoiser, text encoder) and what was read; cheap checks
     first (files, args.json, the DistilBERT folder), then DistilBERT, then the weights."""
-    files = locate_release(folder, model_file)
-    args, config = read_checked_config(files)
-    check_dip_config(args, config, str(files.args))
-    text = build_text_encoder(config, None, bert_dir, "DiP")
-    model, entry = load_denoiser(files, config, bool(args.get("use_ema", False)), "DiP", allow_pickle)
-    return ImportedDiffusion("DiP", files, args, config, model, text, entry)
+    return load_release("DiP", check_dip_config, folder, None, bert_dir, model_file, allow_pickle)

@@ -13,13 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from t2m.export.importers.mdm_files import (
-    ImportedDiffusion,
-    build_text_encoder,
-    load_denoiser,
-    locate_release,
-    read_checked_config,
-)
+from t2m.export.importers.mdm_files import ImportedDiffusion, load_release
 from t2m.model.networks.diffusion import DiffusionConfig
 
 __all__ = ["check_mdm_config", "load_mdm_release"]
@@ -43,9 +37,4 @@ def load_mdm_release(folder: str | Path | None, clip_file: str | Path | None = N
     """An MDM release folder -> (config, denoiser, text encoder) and what was read; ``clip_file`` for a CLIP
     release, ``bert_dir`` for the DistilBERT variant; ``model_file`` when the folder holds several weights files.
     Cheap checks first (files, args.json, the text encoder's file), then the text encoder, then the weights."""
-    files = locate_release(folder, model_file)
-    args, config = read_checked_config(files)
-    check_mdm_config(args, config, str(files.args))
-    text = build_text_encoder(config, clip_file, bert_dir, "MDM")
-    model, entry = load_denoiser(files, config, bool(args.get("use_ema", False)), "MDM", allow_pickle)
-    return ImportedDiffusion("MDM", files, args, config, model, text, entry)
+    return load_release("MDM", check_mdm_config, folder, clip_file, bert_dir, model_file, allow_pickle)

@@ -18,7 +18,7 @@ DistilBERT from a Hugging Face ``distilbert-base-uncased`` folder.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,8 +29,8 @@ from t2m.export.importers.kit import load_checked, read_torch_file
 from t2m.model.networks.diffusion import MDM, DiffusionConfig, released_weights
 from t2m.model.networks.diffusion_text import MdmClipEncoder, TokenStateEncoder, distilbert_encoder
 
-__all__ = ["DATASETS", "DiffusionFiles", "ImportedDiffusion", "build_text_encoder", "load_denoiser", "locate_release",
-           "read_args", "read_checked_config", "weights_entry"]
+__all__ = ["DATASETS", "DiffusionFiles", "ImportedDiffusion", "build_text_encoder", "load_denoiser", "load_release",
+           "locate_release", "read_args", "read_checked_config", "weights_entry"]
 
 ARGS_FILE = "args.json"
 PE_KEYS = ("sequence_pos_encoder.pe", "embed_timestep.sequence_pos_encoder.pe")
@@ -171,3 +171,16 @@ class ImportedDiffusion:
     def __iter__(self):
         """(config, model, text): ``config, model, text = load_mdm_release(...)``."""
         return iter((self.config, self.model, self.text))
+
+
+def load_release(release: str, check: Callable[[dict[str, Any], DiffusionConfig, str], None],
+                 folder: str | Path | None, clip_file: str | Path | None, bert_dir: str | Path | None,
+                 model_file: str | Path | None, allow_pickle: bool) -> ImportedDiffusion:
+    """What both importers do: the files, args.json and its config (``check``: the importer's own refusals), the text
+    encoder (its file refused before the slow checkpoint load), then the weights."""
+    files = locate_release(folder, model_file)
+    args, config = read_checked_config(files)
+    check(args, config, str(files.args))
+    text = build_text_encoder(config, clip_file, bert_dir, release)
+    model, entry = load_denoiser(files, config, bool(args.get("use_ema", False)), release, allow_pickle)
+    return ImportedDiffusion(release, files, args, config, model, text, entry)

@@ -29,7 +29,7 @@ from torch import nn
 
 from t2m.model.networks.clip_text import ClipTextTransformer, ResidualAttentionBlock
 from t2m.model.networks.distilbert import DistilBertTokenStates, build_wordpiece_tokenizer, load_distilbert
-from t2m.model.networks.text_encoders import MINILM_MAX_LENGTH, ClipEncoder, minilm_model_dir, tokenize_batch
+from t2m.model.networks.text_encoders import MINILM_MAX_LENGTH, ClipEncoder, TokenizedModule, minilm_model_dir
 
 if TYPE_CHECKING:
     from tokenizers import Tokenizer
@@ -102,7 +102,7 @@ def mdm_clip_features(encoder: MdmClipEncoder, texts: list[str],
     return encoder.module(input_ids, attention_mask).float().numpy()
 
 
-class TokenStateEncoder:
+class TokenStateEncoder(TokenizedModule):
     """A frozen token-state text encoder: a `tokenizers` Tokenizer (set to its truncation and padding) and a module
     (input_ids, attention_mask) -> (text_states [N, L, dim], text_mask [N, L] bool), which the token-state text
     graph exports. ``pooling`` is ``"tokens"``: nothing is pooled."""
@@ -115,20 +115,6 @@ class TokenStateEncoder:
         self.module = module.eval()
         for parameter in self.module.parameters():
             parameter.requires_grad_(False)
-
-    def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        if isinstance(texts, str):
-            raise ValueError("tokenize() takes a list of captions, not a single string")
-        return tokenize_batch(self.tokenizer, texts)
-
-    def export_module(self) -> nn.Module:
-        return self.module
-
-    def save_tokenizer(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.tokenizer.save(str(path))
-        return path
 
     @torch.no_grad()
     def encode(self, texts: list[str]) -> tuple[np.ndarray, np.ndarray]:
