@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -166,7 +166,6 @@ class ImportedDiffusion:
     model: MDM
     text: MdmClipEncoder | TokenStateEncoder
     entry: str
-    notes: list[str] = field(default_factory=list)
 
     def __iter__(self):
         """(config, model, text): ``config, model, text = load_mdm_release(...)``."""
