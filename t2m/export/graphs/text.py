@@ -35,6 +35,22 @@ def export_text_graph(module: nn.Module, path: str | Path, example_ids: torch.Te
     return path
 
 
+def export_token_states_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor,
+                              example_mask: torch.Tensor) -> Path:
+    """Write a token-state text graph (DiP's DistilBERT, MiniLM's states) from ``module(input_ids, attention_mask)
+    -> (text_states [B, L, Dt], text_mask [B, L] bool)``: nothing pooled, B and L dynamic; the mask is the
+    attention mask as booleans (True = a real token), what the denoiser's cross-attention takes."""
+    return export_graph(
+        module.eval(),
+        (example_ids, example_mask),
+        path,
+        input_names=["input_ids", "attention_mask"],
+        output_names=["text_states", "text_mask"],
+        dynamic_axes={"input_ids": {0: "batch", 1: "tokens"}, "attention_mask": {0: "batch", 1: "tokens"},
+                      "text_states": {0: "batch", 1: "tokens"}, "text_mask": {0: "batch", 1: "tokens"}},
+    )
+
+
 def _restore_dropped_inputs(path: str | Path, names: list[str]) -> None:
     """Put back inputs the exporter dropped because the module ignores them (CLIP's tower finds the end token
     without the mask), so that every text graph has the contract's two inputs and is fed the same way."""

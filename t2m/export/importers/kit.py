@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 __all__ = ["check_tensors", "load_checked", "load_checkpoint_entries", "load_checkpoint_entry", "load_strict",
-           "read_stat", "require_tensor", "shape_text", "strip_prefix"]
+           "read_stat", "read_torch_file", "require_tensor", "shape_text", "strip_prefix"]
 
 log = logging.getLogger(__name__)
 
@@ -36,18 +36,7 @@ def load_checkpoint_entries(path: str | Path, wanted: tuple[tuple[str, ...], ...
     """:func:`load_checkpoint_entry` for several state dicts of one file (MoGenTS keeps two models in each),
     read once: per tuple of ``wanted``, the first key the file has and its state dict."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(str(path))
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        if not allow_pickle:
-            raise ValueError(f"{path}: not loadable as plain tensors ({_first_line(error)}); if you trust the file, "
-                             "pass --allow-pickle") from error
-        log.warning("%s: loading with the full unpickler (--allow-pickle)", path)
-        data = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:
-        raise ValueError(f"{path}: not a complete PyTorch file ({_first_line(error)})") from None
+    data = read_torch_file(path, allow_pickle)
     entries = []
     for keys in wanted:
         alternatives = " or ".join(f"'{k}'" for k in keys)
@@ -61,6 +50,23 @@ def load_checkpoint_entries(path: str | Path, wanted: tuple[tuple[str, ...], ...
             raise ValueError(f"{path}: '{key}' is not a state dict of tensors")
         entries.append((key, {str(k): v.float() if v.is_floating_point() else v for k, v in state.items()}))
     return entries
+
+
+def read_torch_file(path: Path, allow_pickle: bool = False) -> Any:
+    """What a PyTorch file holds, on the CPU: ``weights_only=True``; the full unpickler only with ``allow_pickle``
+    (it can run code from the file); an unreadable file (truncated, not a checkpoint) refused in one line."""
+    if not path.is_file():
+        raise FileNotFoundError(str(path))
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as error:
+        if not allow_pickle:
+            raise ValueError(f"{path}: not loadable as plain tensors ({_first_line(error)}); if you trust the file, "
+                             "pass --allow-pickle") from error
+        log.warning("%s: loading with the full unpickler (--allow-pickle)", path)
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:
+        raise ValueError(f"{path}: not a complete PyTorch file ({_first_line(error)})") from None
 
 
 def _first_line(error: BaseException) -> str:

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from t2m.export.graphs.text import export_text_graph, export_tiny_text_encoder
+from t2m.export.graphs.text import export_text_graph, export_tiny_text_encoder, export_token_states_graph
 
-__all__ = ["TextSource", "clip_text_source", "encoder_text_source", "minilm_text_source", "recorded_text_source",
-           "save_text_tokenizer", "tiny_text_source"]
+__all__ = ["TextSource", "clip_text_source", "encoder_text_source", "mdm_clip_text_source", "minilm_text_source",
+           "recorded_text_source", "save_text_tokenizer", "tiny_text_source", "token_states_text_source"]
 
 
 @dataclass
@@ -64,6 +64,28 @@ def clip_text_source(weights: str | Path) -> TextSource:
         return encoder_text_source(ClipEncoder(weights))
     except ImportError as error:  # open_clip is an optional extra: a user error, not a crash
         raise ValueError(str(error)) from error
+
+
+def mdm_clip_text_source(weights: str | Path) -> TextSource:
+    """MDM's CLIP text path (t2m.model.networks.diffusion_text.MdmClipEncoder): the CLIP graph of the other
+    families with OpenAI's tokenizer cut to 22 ids (20 BPE tokens), features in float32."""
+    from t2m.model.networks.diffusion_text import MdmClipEncoder
+
+    return encoder_text_source(MdmClipEncoder(weights))
+
+
+def token_states_text_source(encoder: Any) -> TextSource:
+    """A t2m.model.networks.diffusion_text.TokenStateEncoder (DiP's DistilBERT, MiniLM's states): the token-state
+    graph (text_states, text_mask) and its tokenizer.json; the manifest entry says ``pooling: tokens``."""
+
+    def write(out_dir: Path) -> dict:
+        encoder.save_tokenizer(out_dir / "tokenizer.json")
+        ids, mask = encoder.tokenize(["a person walks forward", "someone jumps up and down twice"])
+        export_token_states_graph(encoder.export_module(), out_dir / "text_encoder.onnx", ids, mask)
+        return {"kind": encoder.name, "dim": int(encoder.dim), "max_length": int(encoder.max_length),
+                "pooling": "tokens", "normalize": False, "null_condition": "zeros"}
+
+    return TextSource(write, encoder)
 
 
 def recorded_text_source(run: Path, run_data: Mapping[str, Any],

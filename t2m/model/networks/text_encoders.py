@@ -65,14 +65,15 @@ class TextEncoder(ABC):
         return np.concatenate(chunks).astype(np.float32)
 
 
-class TokenizedTextEncoder(TextEncoder):
-    """An encoder made of a `tokenizers` Tokenizer (already set to the encoder's truncation and padding) and a torch
-    module over its ids: tokenize, export and save the tokenizer the same way for MiniLM and CLIP."""
+class TokenizedModule:
+    """A `tokenizers` Tokenizer (already set to the encoder's truncation and padding) and a torch module over its
+    ids: tokenize, export and save the tokenizer the same way for every encoder (MiniLM, CLIP, token states)."""
 
     tokenizer: Tokenizer
     module: nn.Module
 
     def tokenize(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """texts -> (input_ids, attention_mask) int64 [N, L] with the tokenizer's own truncation and padding."""
         encodings = self.tokenizer.encode_batch(list(texts))
         input_ids = torch.tensor([e.ids for e in encodings], dtype=torch.long)
         attention_mask = torch.tensor([e.attention_mask for e in encodings], dtype=torch.long)
@@ -87,6 +88,10 @@ class TokenizedTextEncoder(TextEncoder):
         path.parent.mkdir(parents=True, exist_ok=True)
         self.tokenizer.save(str(path))
         return path
+
+
+class TokenizedTextEncoder(TokenizedModule, TextEncoder):
+    """A pooled-feature encoder over a tokenizer and a module (MiniLM, CLIP)."""
 
 
 # --- MiniLM ----------------------------------------------------------------------------------------------------
