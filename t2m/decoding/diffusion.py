@@ -419,7 +419,7 @@ def sample_segment_chains(denoiser: Denoiser, schedule: Schedule, chains: Sequen
         if not running:
             break
         jobs = [chains[i].job(plans[i][call][0], pred_len) for i in running]
-        run_jobs(denoiser, schedule, jobs, features, None if on_step is None else lambda n: on_step(steps + n))
+        run_jobs(denoiser, schedule, jobs, features, _offset(on_step, steps))
         steps += schedule.steps
         for i, job in zip(running, jobs):
             segment, kept = plans[i][call]
@@ -427,6 +427,13 @@ def sample_segment_chains(denoiser: Denoiser, schedule: Schedule, chains: Sequen
             if after_call is not None:
                 after_call(i, chains[i])
     return [None if index in dropped else chain.segments() for index, chain in enumerate(chains)]
+
+
+def _offset(on_step: Callable[[int], None] | None, before: int) -> Callable[[int], None] | None:
+    """on_step counting from `before` steps already made."""
+    if on_step is None:
+        return None
+    return lambda steps: on_step(before + steps)
 
 
 @dataclass(frozen=True)
