@@ -26,6 +26,7 @@ import onnxruntime as ort
 from t2m.bundle import BundleError
 from t2m.decoding.diffusion import (
     DiffusionJob,
+    NoiseSource,
     SegmentChain,
     cosine_schedule,
     join_windows,
@@ -109,7 +110,8 @@ def encode_token_states(text: TextEncoder, texts: Sequence[str]) -> tuple[list[n
 class DiffusionRequest:
     """One request's work: its segments' texts (pooled [Dt] or token states [L, Dt] with masks) and frames, its
     guidance and generator; `conds` (pooled features) serve the unknown-text check; `progress` is the engine's
-    streaming hook (DiP)."""
+    streaming hook (DiP); `noise` replaces the generator's draws, in the same order (x_T then one per step, job
+    after job as the loop draws them), for parity runs."""
 
     conds: np.ndarray
     texts: list[np.ndarray]
@@ -119,6 +121,7 @@ class DiffusionRequest:
     rng: np.random.Generator
     cancelled: Callable[[], bool]
     progress: Callable[[Sequence[Any], Sequence[bool]], None] | None = None
+    noise: NoiseSource | None = None   # injected draws instead of the generator's (parity runs)
 
 
 class DiffusionCodes:
@@ -179,7 +182,8 @@ class DiffusionCodes:
                 on_step: Callable[[int], None] | None) -> list[list[np.ndarray] | None]:
         assert self.prefix is not None
         chains = [SegmentChain(texts=job.texts, frames=job.frames, prefix=self.prefix.copy(), rng=job.rng,
-                               guidance=job.guidance, text_masks=job.text_masks, cancelled=job.cancelled)
+                               guidance=job.guidance, text_masks=job.text_masks, cancelled=job.cancelled,
+                               noise=job.noise)
                   for job in jobs]
 
         def after_call(index: int, chain: SegmentChain) -> None:
@@ -200,7 +204,8 @@ class DiffusionCodes:
         for job in jobs:
             for k, frames in enumerate(job.frames):
                 sentence = DiffusionJob(text=job.texts[k], frames=frames, rng=job.rng, guidance=job.guidance,
-                                        text_mask=None if job.text_masks is None else job.text_masks[k])
+                                        text_mask=None if job.text_masks is None else job.text_masks[k],
+                                        noise=job.noise)
                 owners[id(sentence)] = job
                 sentences.append(sentence)
         run_jobs(self.denoiser, self.schedule, sentences, self.features, on_step,
@@ -235,7 +240,7 @@ class DiffusionCodes:
             for window in join_windows(job.frames, s.join_frames, s.join_context):
                 windows.append((window, DiffusionJob(
                     text=text, text_mask=mask, frames=window.frames, rng=job.rng, guidance=1.0,
-                    known=motion[window.start:window.end], known_mask=window.known_mask())))
+                    known=motion[window.start:window.end], known_mask=window.known_mask(), noise=job.noise)))
                 owners.append(index)
         if not windows:
             return
