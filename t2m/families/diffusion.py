@@ -9,7 +9,7 @@ normalised frames (frames_per_token 1) and its decoder.onnx only de-normalises t
   standing pose stored in the bundle (`prefix`).
 
 The family's code lives in t2m.decoding.diffusion (the loop), t2m.service.engine.diffusion_codes (served) and
-t2m.export.families.diffusion (export; the importers write this format). docs/diffusion.md describes the bundle.
+t2m.export.families.diffusion (export; the importers write this format). docs/diffusion-family.md describes the bundle.
 """
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ FIXED_COMMON = {"frames_per_token": 1, "codebook_size": 1, "residual_layers": 1}
 
 @dataclass(frozen=True)
 class DiffusionSettings:
-    """The `diffusion` block (docs/diffusion.md)."""
+    """The `diffusion` block (docs/diffusion-family.md)."""
 
     arch: str
     steps: int

@@ -81,9 +81,10 @@ def random_statistics(seed: int = 0, features: int = 263) -> tuple[np.ndarray, n
 
 def build_random_diffusion_bundle(out_dir: str | Path, *, arch: str = "mdm", seed: int = 0,
                                   name: str | None = None, version: str = "0.0.0", join_frames: int = 4,
-                                  join_context: int = 4, **overrides: Any) -> dict:
+                                  join_context: int = 4, max_frames: int | None = None, **overrides: Any) -> dict:
     """A tiny random-weight MDM or DiP bundle (the tiny text graph: pooled for MDM, token states for DiP); the
-    module is random_diffusion_model(arch, seed, **overrides). Returns the written manifest."""
+    module is random_diffusion_model(arch, seed, **overrides); `max_frames`: the longest segment (default: 60 MDM,
+    200 DiP). Returns the written manifest."""
     from t2m.export.families.diffusion import export_diffusion_bundle
 
     model = random_diffusion_model(arch, seed, **overrides)
@@ -94,6 +95,6 @@ def build_random_diffusion_bundle(out_dir: str | Path, *, arch: str = "mdm", see
         out_dir, model=model, mean=mean, std=std, text_source=text, name=name or f"t2m-random-{arch}",
         version=version, training_data={"name": "none (random weights)", "license": "Apache-2.0",
                                         "attribution": "Random weights for tests; not a trained model."},
-        license="Apache-2.0", default_guidance=2.5 if arch == "mdm" else 7.5, max_frames=TINY_MAX_FRAMES[arch],
+        license="Apache-2.0", default_guidance=2.5 if arch == "mdm" else 7.5, max_frames=max_frames or TINY_MAX_FRAMES[arch],
         join_frames=join_frames, join_context=join_context,
         notes="Random weights: this bundle exists to test the service and produces meaningless motion.")
