@@ -14,17 +14,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from join_smoothness import velocity_changes  # noqa: E402
-
-from t2m.service.engine.engine import OnnxEngine  # noqa: E402
-from t2m.service.engine.types import GenerationRequest, SegmentRequest  # noqa: E402
+from benchmarks.join_smoothness import velocity_changes
+from t2m.service.engine.engine import OnnxEngine
+from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
 REQUESTS = [
     [("a person walks forward", 3.1), ("a person waves with the right hand", 2.3), ("a person bows", 1.9)],
@@ -46,7 +44,7 @@ def main() -> None:
             build_random_diffusion_bundle(bundle, arch="mdm", join_frames=10, join_context=10,
                                           max_frames=196)
         engine = OnnxEngine.load(bundle, intra_op_threads=1)
-        codes = engine.codes
+        codes: Any = engine.codes   # t2m.service.engine.diffusion_codes.DiffusionCodes
         joined = codes.settings
         figures: dict[str, tuple[list[float], list[float]]] = {"with the pass": ([], []), "without": ([], [])}
         for seed in range(args.seeds):

@@ -3,6 +3,7 @@ the CLI export, the sentence rules (DiP's segment chains, MDM's join windows) an
 has a control that shows it can fail."""
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 
@@ -137,11 +138,11 @@ def test_join_windows_stay_inside_their_segments_and_never_overlap():
     assert [(w.start, w.end, w.before, w.after) for w in short] == [(0, 4, 2, 1), (4, 13, 1, 4)]
     for frames in ([1, 1], [5, 1, 5], [60, 60, 60], [2, 7, 3, 9]):
         found = join_windows(frames, join=10, context=10)
-        for first, second in zip(found, found[1:]):
+        for first, second in itertools.pairwise(found):
             assert first.end <= second.start
         bounds = np.cumsum(frames)[:-1]
         for window in found:   # inside the motion, the frames made anew around its one join
-            assert 0 <= window.start and window.end <= sum(frames)
+            assert window.start >= 0 and window.end <= sum(frames)
             assert sum(window.start + window.before <= b <= window.end - window.after for b in bounds) == 1
     assert join_windows([20, 30], join=0, context=4) == []
 

@@ -95,6 +95,7 @@ def build_random_diffusion_bundle(out_dir: str | Path, *, arch: str = "mdm", see
         out_dir, model=model, mean=mean, std=std, text_source=text, name=name or f"t2m-random-{arch}",
         version=version, training_data={"name": "none (random weights)", "license": "Apache-2.0",
                                         "attribution": "Random weights for tests; not a trained model."},
-        license="Apache-2.0", default_guidance=2.5 if arch == "mdm" else 7.5, max_frames=max_frames or TINY_MAX_FRAMES[arch],
+        license="Apache-2.0", default_guidance=2.5 if arch == "mdm" else 7.5,
+        max_frames=max_frames or TINY_MAX_FRAMES[arch],
         join_frames=join_frames, join_context=join_context,
         notes="Random weights: this bundle exists to test the service and produces meaningless motion.")

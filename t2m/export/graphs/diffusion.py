@@ -70,6 +70,9 @@ def export_denoiser(model: MDM, path: str | Path) -> Path:
 class Denormalise(nn.Module):
     """Normalised frames -> features: motion * std + mean (the statistics the model was trained with)."""
 
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(self, mean: np.ndarray, std: np.ndarray) -> None:
         super().__init__()
         self.register_buffer("mean", torch.as_tensor(np.asarray(mean, np.float32)))
