@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
+from t2m.export.graphs.text import TinyTextEncoder
 from t2m.export.kit.text_sources import TextSource, tiny_text_source
 from t2m.model.networks.diffusion import MDM, DiffusionConfig
 
@@ -25,18 +25,9 @@ TINY_SIZES: dict[str, dict[str, Any]] = {
 TINY_MAX_FRAMES = {"mdm": 60, "dip": 200}
 
 
-class TinyTokenEncoder(nn.Module):
-    """Random token embeddings -> linear, per token (zeros at padding): a token-state encoder's shape, tiny."""
-
-    def __init__(self, vocab_size: int, dim: int, seed: int = 0) -> None:
-        super().__init__()
-        generator = torch.Generator().manual_seed(seed)
-        self.embed = nn.Embedding(vocab_size, dim)
-        self.proj = nn.Linear(dim, dim)
-        with torch.no_grad():
-            self.embed.weight.copy_(torch.randn(vocab_size, dim, generator=generator))
-            self.proj.weight.copy_(torch.randn(dim, dim, generator=generator) / dim**0.5)
-            self.proj.bias.zero_()
+class TinyTokenEncoder(TinyTextEncoder):
+    """The tiny text encoder's random token embeddings -> linear, per token (zeros at padding), no pooling: a
+    token-state encoder's shape, tiny."""
 
     def forward(self, input_ids: torch.Tensor, attention_mask: torch.Tensor) -> torch.Tensor:
         return self.proj(self.embed(input_ids)) * attention_mask.unsqueeze(-1).to(torch.float32)
