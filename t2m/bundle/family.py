@@ -113,6 +113,12 @@ class ModelFamily:
         """The served decoding object for a loaded bundle (t2m.service.engine.codes.FamilyCodes)."""
         raise NotImplementedError
 
+    def capabilities_of(self, manifest: Any) -> Capabilities:
+        """What a loaded bundle's served decoding can do (the engine asks this): the family's `capabilities`, unless
+        its bundles differ (the diffusion family: a DiP bundle streams call by call, an MDM one makes whole
+        motions)."""
+        return self.capabilities
+
     def check_servable(self, manifest: Any) -> None:
         """Refuse, at load, a manifest that passes the contract but that the served loop cannot run."""
 

@@ -15,6 +15,14 @@ The official sampler (docs: ../shared/docs/diffusion-models.md §3, §5, §6), r
 - DiP: each call denoises `pred_len` (40) frames after a clean prefix of `context_len` (20) frames; the last 20
   frames of a call are the next call's prefix, and each call may have its own text.
 
+What the service adds for a request of several sentences (segments of exact frame counts):
+
+- DiP (:class:`SegmentChain`): a segment covers its own calls, ⌈frames / pred_len⌉ of them, all with its text; its
+  last call keeps only the frames the segment still needs (the rest is dropped) and the next call continues from
+  the last `context_len` frames kept. No call straddles two sentences, and every segment has exactly its frames.
+- MDM (:func:`join_windows`): each sentence is one whole motion; at each join a window is denoised again with
+  known frames on its two sides (MDM's own in-betweening, edit.py's in_between mode) so the join is made anew.
+
 Frames are [T, F] per job ([B, T, F] batched). The denoiser is one batched call per step, an ONNX graph or a
 PyTorch module behind :class:`Denoiser`: a job's conditional row and, when its guidance is not 1, its null row go
 into the same call, and jobs of any length share it (each row's valid length is an input).
@@ -28,9 +36,10 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-__all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "Denoiser", "DiffusionChain", "DiffusionJob", "NoiseSource", "Schedule",
-           "chain_calls", "cosine_alpha_bar", "cosine_betas", "cosine_schedule", "denoise_step", "guided",
-           "noise_from", "official_to_frames", "sample", "sample_chains", "start"]
+__all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "Denoiser", "DiffusionChain", "DiffusionJob", "JoinWindow", "NoiseSource",
+           "Schedule", "SegmentChain", "chain_calls", "cosine_alpha_bar", "cosine_betas", "cosine_schedule",
+           "denoise_step", "guided", "join_windows", "noise_from", "official_to_frames", "run_jobs", "sample",
+           "sample_chains", "sample_segment_chains", "start"]
 
 MDM_GUIDANCE = 2.5   # generate.py's default guidance_param
 DIP_GUIDANCE = 7.5   # DiP.md's command line
@@ -270,10 +279,7 @@ def _posterior_step(job: DiffusionJob, schedule: Schedule, x0: np.ndarray) -> No
 
 def sample(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[DiffusionJob], features: int) -> list[np.ndarray]:
     """Each job's motion [frames, F] after all N steps, the jobs stepped together in one batch."""
-    for job in jobs:
-        start(job, schedule, features)
-    while any(job.t >= 0 for job in jobs):
-        denoise_step(denoiser, schedule, jobs)
+    run_jobs(denoiser, schedule, jobs, features)
     return [job.x for job in jobs]
 
 
@@ -323,3 +329,157 @@ def sample_chains(denoiser: Denoiser, schedule: Schedule, chains: Sequence[Diffu
 def _next_prefix(prefix: np.ndarray, new: np.ndarray) -> np.ndarray:
     """The last P frames of what the call made (and of the old prefix, were a call shorter than P)."""
     return np.concatenate([prefix, new])[-len(prefix):]
+
+
+def run_jobs(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[DiffusionJob], features: int,
+             on_step: Callable[[int], None] | None = None,
+             keep: Callable[[DiffusionJob], bool] | None = None) -> None:
+    """All N steps of the jobs, stepped together (`sample` with hooks): after each step `on_step(steps so far)`;
+    `keep(job)` False stops a job (its request was cancelled) before the next step."""
+    for job in jobs:
+        start(job, schedule, features)
+    steps = 0
+    while True:
+        if keep is not None:
+            for job in jobs:
+                if job.t >= 0 and not keep(job):
+                    job.t = -1
+        if not any(job.t >= 0 for job in jobs):
+            return
+        denoise_step(denoiser, schedule, jobs)
+        steps += 1
+        if on_step is not None:
+            on_step(steps)
+
+
+# ------------------------------------------------------------------------------------- sentences: DiP and MDM
+
+
+@dataclass
+class SegmentChain:
+    """One DiP request of several sentences: segment k's `frames[k]` frames come from ⌈frames[k] / pred_len⌉ calls
+    with its own text (`texts[k]`, `text_masks[k]`); the last call's first frames are kept, as many as the segment
+    still needs, and the next call starts after them. `prefix` [P, F]: the clean frames before the first call (the
+    bundle's standing pose), then the last P frames kept. `made[k]`: segment k's kept frames, call by call."""
+
+    texts: Sequence[np.ndarray]
+    frames: Sequence[int]
+    prefix: np.ndarray
+    rng: np.random.Generator
+    guidance: float = DIP_GUIDANCE
+    text_masks: Sequence[np.ndarray] | None = None
+    noise: NoiseSource | None = None
+    cancelled: Callable[[], bool] | None = None
+    made: list[list[np.ndarray]] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if len(self.texts) != len(self.frames) or min(self.frames, default=0) < 1:
+            raise ValueError(f"one text per segment and at least one frame each, got {len(self.texts)} texts for "
+                             f"{list(self.frames)} frames")
+        self.made = [[] for _ in self.frames]
+
+    def calls(self, pred_len: int) -> list[tuple[int, int]]:
+        """(segment, frames kept) of every call, in order."""
+        return [(k, min(pred_len, frames - call * pred_len)) for k, frames in enumerate(self.frames)
+                for call in range(chain_calls(frames, pred_len))]
+
+    def job(self, segment: int, pred_len: int) -> DiffusionJob:
+        return DiffusionJob(text=self.texts[segment], frames=pred_len, rng=self.rng, guidance=self.guidance,
+                            text_mask=None if self.text_masks is None else self.text_masks[segment],
+                            prefix=self.prefix, noise=self.noise)
+
+    def keep(self, segment: int, new: np.ndarray, kept: int) -> None:
+        self.made[segment].append(new[:kept])
+        self.prefix = _next_prefix(self.prefix, new[:kept])
+
+    def segments(self) -> list[np.ndarray]:
+        """Each segment's frames kept so far [n, F] (n = frames[k] once it is finished)."""
+        features = self.prefix.shape[1]
+        return [np.concatenate(parts) if parts else np.zeros((0, features), np.float32) for parts in self.made]
+
+    def finished(self) -> list[bool]:
+        return [sum(len(part) for part in parts) == frames for parts, frames in zip(self.made, self.frames)]
+
+
+def sample_segment_chains(denoiser: Denoiser, schedule: Schedule, chains: Sequence[SegmentChain], pred_len: int, *,
+                          after_call: Callable[[int, SegmentChain], None] | None = None,
+                          on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
+    """Every chain's segments ([frames[k], F] each; None: cancelled on the way), call after call, the chains still
+    running batched together (their k-th calls share the denoiser calls, whatever segment each is in). After each
+    call, `after_call(index, chain)`: the frames kept so far are final (DiP streams them)."""
+    plans = [chain.calls(pred_len) for chain in chains]
+    features = chains[0].prefix.shape[1]
+    dropped: set[int] = set()
+    steps = 0
+    for call in range(max(len(plan) for plan in plans)):
+        for index, chain in enumerate(chains):
+            if chain.cancelled is not None and chain.cancelled():
+                dropped.add(index)
+        running = [i for i, plan in enumerate(plans) if call < len(plan) and i not in dropped]
+        if not running:
+            break
+        jobs = [chains[i].job(plans[i][call][0], pred_len) for i in running]
+        run_jobs(denoiser, schedule, jobs, features, _offset(on_step, steps))
+        steps += schedule.steps
+        for i, job in zip(running, jobs):
+            segment, kept = plans[i][call]
+            chains[i].keep(segment, job.x, kept)
+            if after_call is not None:
+                after_call(i, chains[i])
+    return [None if index in dropped else chain.segments() for index, chain in enumerate(chains)]
+
+
+def _offset(on_step: Callable[[int], None] | None, before: int) -> Callable[[int], None] | None:
+    """on_step counting from `before` steps already made."""
+    if on_step is None:
+        return None
+    return lambda steps: on_step(before + steps)
+
+
+@dataclass(frozen=True)
+class JoinWindow:
+    """The in-between edit at one join of sentences made as whole motions: frames [start, end) of the joined motion
+    are denoised again, the first `before` and the last `after` of them known (they come out exactly), the ones
+    between them, around the join, made anew."""
+
+    start: int
+    end: int
+    before: int
+    after: int
+
+    @property
+    def frames(self) -> int:
+        return self.end - self.start
+
+    def known_mask(self) -> np.ndarray:
+        """[frames, 1] bool: True on the known frames (every feature of them)."""
+        mask = np.zeros((self.frames, 1), bool)
+        mask[: self.before] = True
+        mask[self.frames - self.after:] = True
+        return mask
+
+
+def join_windows(frames: Sequence[int], join: int, context: int) -> list[JoinWindow]:
+    """The windows at the joins of segments of `frames` frames put end to end: on each side of a join, up to `join`
+    frames made anew after up to `context` known ones. A segment lends each of its two joins at most half of its
+    frames (its only join: all of them), so windows never overlap; a side lending fewer than join + context frames
+    makes half of them anew (at most `join`) and keeps the rest. No window where nothing would be made anew."""
+    if join < 0 or context < 0:
+        raise ValueError(f"join and context frames must be >= 0, got {join} and {context}")
+    windows: list[JoinWindow] = []
+    boundary = 0
+    last = len(frames) - 1
+    for k in range(last):
+        boundary += frames[k]
+        left = frames[k] if k == 0 else frames[k] - frames[k] // 2
+        right = frames[k + 1] if k + 1 == last else frames[k + 1] // 2
+        sides = []
+        for lent in (left, right):
+            made = min(join, lent // 2 if context else lent)
+            sides.append((made, min(context, lent - made)))
+        (made_left, known_left), (made_right, known_right) = sides
+        if made_left + made_right == 0:
+            continue
+        windows.append(JoinWindow(start=boundary - made_left - known_left, end=boundary + made_right + known_right,
+                                  before=known_left, after=known_right))
+    return windows

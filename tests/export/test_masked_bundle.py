@@ -108,7 +108,7 @@ def test_the_embedded_gpt_bundle_still_verifies():
     (lambda m: m["masked"].update(mask_id=17), "'masked.mask_id' is 17, expected codebook_size 16"),
     (lambda m: m["masked"].update(length_estimator="yes"), "'masked.length_estimator' must be true or false"),
     (lambda m: m["masked"].update(residual_temperature=0), "'masked.residual_temperature' must be null or a number"),
-    (lambda m: m.update(family="diffusion"), "'family' must be one of ['gpt', 'hifigpt', 'masked'], got 'diffusion'"),
+    (lambda m: m.update(family="flow"), "'family' must be one of ['diffusion', 'gpt', 'hifigpt', 'masked'], got 'flow'"),
     (lambda m: m["files"].pop("residual.onnx"), "does not list 'residual.onnx'"),
     (lambda m: (m["masked"].update(length_estimator=True), m["files"].pop("length.onnx")),
      "'masked.length_estimator' is true but 'files' does not list 'length.onnx'"),

@@ -94,7 +94,7 @@ def test_size_mismatch_is_named(bundle_copy):
     (lambda m: m.pop("codebook_size"), "'codebook_size'"),
     (lambda m: m["gpt"].pop("n_head"), "'gpt.n_head'"),
     (lambda m: m["text_encoder"].update(dim="384"), "'text_encoder.dim' must be a positive integer, got '384'"),
-    (lambda m: m.update(family="diffusion"), "'family' must be one of ['gpt', 'hifigpt', 'masked']"),
+    (lambda m: m.update(family="flow"), "'family' must be one of ['diffusion', 'gpt', 'hifigpt', 'masked']"),
     (lambda m: m.update(family="masked"), "missing field 'masked.columns'"),
     (lambda m: m.update(end_id=7), "end_id"),
     (lambda m: m["gpt"].update(block_size=10), "block_size"),

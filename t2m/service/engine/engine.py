@@ -25,7 +25,7 @@ from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.execution import Execution
-from t2m.service.engine.family_codes import FamilyCodes, ends_segments
+from t2m.service.engine.family_codes import FamilyCodes, decoder_reach, ends_segments
 from t2m.service.engine.reach import DecoderReach, probe_reach
 from t2m.service.engine.requests import segment_steps
 from t2m.service.engine.step_order import StepOrder
@@ -69,14 +69,16 @@ class OnnxEngine:
                               f"{manifest.skeleton!r} has {len(self.skeleton.joint_names)} joints")
         self.text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
         self.family = get_family(manifest.family)
-        self.capabilities = self.family.capabilities
+        self.capabilities = self.family.capabilities_of(manifest)
         self.codes: FamilyCodes = self.family.serve(bundle)
         self.decoder = Decoder(bundle.decoder_session, manifest.feature_dim)
         # a family without early frames streams once the whole motion is decoded; the reach probe feeds the decoder
-        # rows of R codes where the family's decoder reads [steps, R]
-        self.reach: DecoderReach | None = None if not self.capabilities.early_frames else probe_reach(
-            self.decoder.decode, manifest.codebook_size, manifest.frames_per_token,
-            depth=manifest.residual_layers if self.capabilities.code_depth else None)
+        # rows of R codes where the family's decoder reads [steps, R]; a served object whose decoder reads no codes
+        # measures its decoder's reach itself (family_codes.decoder_reach)
+        self.reach: DecoderReach | None = None if not self.capabilities.early_frames else (
+            decoder_reach(self.codes) or probe_reach(
+                self.decoder.decode, manifest.codebook_size, manifest.frames_per_token,
+                depth=manifest.residual_layers if self.capabilities.code_depth else None))
         self.stream_every = stream_every
         self.exact_durations = exact_durations
         self.unknown_text = unknown_text

@@ -5,7 +5,9 @@ texts, draws its own seeded generator) and jobs into per-segment codes; the engi
 every family: text warnings, one decode of the concatenated codes, joints, formats. Families whose capabilities
 say `continuous_batching` also start cohorts that step at shared boundaries (t2m.decoding.lockstep.Cohort). An object
 whose model can end a segment given no duration says how in an `ends_segments` attribute (a few words, shown by
-/health; see `ends_segments` below); without it a client is told that a null duration is refused."""
+/health; see `ends_segments` below); without it a client is told that a null duration is refused. An object whose
+decoder.onnx reads something other than codes (the diffusion family: normalised frames) measures that decoder's
+reach itself and gives it as a `decoder_reach` attribute (engine/reach.py's DecoderReach; see `decoder_reach`)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -16,7 +18,7 @@ import numpy as np
 from t2m.service.engine.text import TextEncoder
 from t2m.service.engine.types import GenerationRequest, ModelLimits
 
-__all__ = ["FamilyCodes", "FamilyJob", "ends_segments"]
+__all__ = ["FamilyCodes", "FamilyJob", "decoder_reach", "ends_segments"]
 
 
 class FamilyJob(Protocol):
@@ -43,3 +45,9 @@ def ends_segments(codes: object) -> str | None:
     optional `ends_segments` attribute."""
     how = getattr(codes, "ends_segments", None)
     return how if isinstance(how, str) and how else None
+
+
+def decoder_reach(codes: object) -> Any:
+    """The decoder's reach the family's served object measured itself (its optional `decoder_reach` attribute), or
+    None: the engine probes the decoder with codes (engine/reach.py)."""
+    return getattr(codes, "decoder_reach", None)

@@ -71,8 +71,9 @@ class FrameStreamer:
                                                                                            self.sent_codes)):
             return
         start = max(0, self.sent_codes - self.reach.behind)
-        # (a code map's rows for T2M-HiFiGPT; a segment with no codes yet has no shape to join)
-        codes = np.concatenate([np.asarray(tokens, dtype=np.int64) for tokens in known if len(tokens)])[start:]
+        # (a code map's rows for T2M-HiFiGPT, normalised frames for the diffusion family: the decoder casts to its
+        # input's type; a segment with no codes yet has no shape to join)
+        codes = np.concatenate([np.asarray(tokens) for tokens in known if len(tokens)])[start:]
         per = self.frames_per_token
         rows = self.decode(codes)[(self.sent_codes - start) * per:(final - start) * per]
         self.sent_codes = final

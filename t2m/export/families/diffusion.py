@@ -1,0 +1,104 @@
+"""An MDM / DiP module (t2m.model.networks.diffusion) -> a diffusion-family bundle (docs/diffusion-family.md).
+
+`export_diffusion_bundle` is what the importers (`t2m import mdm|dip`) and the tiny random bundles call: the module's
+denoiser graph, the de-normalising decoder, the text graph of a TextSource (pooled features for MDM's CLIP, token
+states for DiP's DistilBERT), mean/std, DiP's first prefix, the manifest and the card, hashed and verified by
+write_bundle against the family's signatures.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from t2m.bundle.manifest import COMMON_FILES
+from t2m.export.kit.text_sources import TextSource
+from t2m.model.networks.diffusion import MDM
+
+__all__ = ["MDM_MAX_FRAMES", "PREFIX_FILE", "export_diffusion_bundle", "standing_prefix"]
+
+MDM_MAX_FRAMES = 196          # generate.py's limit for HumanML3D / KIT
+PREFIX_FILE = "prefix.npy"
+JOIN_FRAMES = 10              # frames made anew on each side of an MDM join (0.5 s at 20 fps)
+JOIN_CONTEXT = 10             # known frames kept around them on each side
+
+
+def standing_prefix(mean: np.ndarray, std: np.ndarray, frames: int) -> np.ndarray:
+    """`frames` normalised frames of standing still: the statistics' mean frame (HumanML3D's mean pose, which
+    decodes to a symmetric standing pose) with the root's rotation and linear velocities and every joint's local
+    velocity set to 0 and the four foot contacts to 1, then normalised; float32 [frames, D]. (The mean frame
+    itself is not still: its root velocity is the data's mean, about 8.7 mm per frame forward.)"""
+    mean, std = np.asarray(mean, np.float64), np.asarray(std, np.float64)
+    dim = len(mean)
+    joints = (dim + 1) // 12
+    if 12 * joints - 1 != dim:
+        raise ValueError(f"feature_dim {dim} is not a HumanML3D layout (12 * joints - 1)")
+    still = mean.copy()
+    still[0:3] = 0.0                                       # root angular velocity, root linear velocity x/z
+    velocities = 4 + 9 * (joints - 1)
+    still[velocities:velocities + 3 * joints] = 0.0        # local velocities
+    still[-4:] = 1.0                                       # both feet on the ground
+    normalised = np.where(std > 0, (still - mean) / np.where(std > 0, std, 1.0), 0.0)
+    return np.repeat(normalised[None], frames, axis=0).astype(np.float32)
+
+
+def export_diffusion_bundle(
+    out_dir: str | Path, *, model: MDM, mean: np.ndarray, std: np.ndarray, text_source: TextSource, name: str,
+    version: str, training_data: Mapping[str, str], license: str, default_guidance: float,
+    unconditional_branch: bool = True, max_frames: int = MDM_MAX_FRAMES, join_frames: int = JOIN_FRAMES,
+    join_context: int = JOIN_CONTEXT, prefix: np.ndarray | None = None, description: str = "",
+    notes: str = "") -> dict[str, Any]:
+    """Write and verify the bundle; returns the written manifest. `max_frames`: the longest segment (MDM: 196; a
+    DiP model has no limit of its own: how long one sentence may run); `prefix` [context_len, F] normalised frames
+    before DiP's first call (default: standing_prefix of mean/std); `join_frames` / `join_context`: MDM's
+    in-between window at each join of sentences (0 join frames: the sentences are put end to end as made)."""
+    from t2m.export.graphs.diffusion import export_denoiser, export_denormaliser
+    from t2m.export.writing.bundle import motion_fields, render_family_card, write_bundle
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    c = model.config
+    mean, std = np.asarray(mean, np.float32), np.asarray(std, np.float32)
+    if mean.shape != (c.features,) or std.shape != (c.features,):
+        raise ValueError(f"mean/std must be [{c.features}], got {mean.shape} / {std.shape}")
+    text = text_source.write(out_dir)
+    if text["dim"] != c.text_dim:
+        raise ValueError(f"the text encoder gives {text['dim']}-d features, the model reads {c.text_dim}")
+    export_denoiser(model, out_dir / "denoiser.onnx")
+    export_denormaliser(mean, std, out_dir / "decoder.onnx")
+    np.save(out_dir / "mean.npy", mean)
+    np.save(out_dir / "std.npy", std)
+    files: dict[str, str | Path | bytes] = {
+        file: out_dir / file for file in (*COMMON_FILES[:2], "denoiser.onnx", *COMMON_FILES[2:-1])}
+    chained = c.pred_len > 0
+    if chained:
+        first = standing_prefix(mean, std, c.context_len) if prefix is None else np.asarray(prefix, np.float32)
+        if first.shape != (c.context_len, c.features):
+            raise ValueError(f"prefix must be [{c.context_len}, {c.features}], got {first.shape}")
+        np.save(out_dir / PREFIX_FILE, first)
+        files[PREFIX_FILE] = out_dir / PREFIX_FILE
+    block = {"arch": c.arch, "steps": c.diffusion_steps, "default_guidance": float(default_guidance),
+             "unconditional_branch": bool(unconditional_branch),
+             "text_conditioning": "tokens" if c.text_tokens else "pooled", "mask_frames": c.mask_frames,
+             "context_len": c.context_len if chained else 0, "pred_len": c.pred_len if chained else 0,
+             "join_frames": 0 if chained else join_frames, "join_context": 0 if chained else join_context,
+             "prefix": PREFIX_FILE if chained else None}
+    manifest: dict[str, Any] = {
+        "family": "diffusion", "name": name, "version": version, **motion_fields(c.features, 1, max_frames),
+        "codebook_size": 1, "residual_layers": 1, "text_encoder": text, "diffusion": block,
+        "training_data": dict(training_data), "license": license,
+        "quantization": {"text_encoder": None, "denoiser": None}}
+    how = (f"{c.pred_len}-frame calls after {c.context_len} clean frames, each sentence its own calls; the first "
+           "call continues a standing pose (prefix.npy)" if chained else
+           f"each sentence a whole motion of at most {max_frames} frames; joins re-made by in-betweening "
+           f"({join_frames} frames a side after {join_context} known)")
+    rows = [("denoiser", f"{c.arch}, {c.layers} layers, latent {c.latent_dim}, x0 prediction, {c.diffusion_steps} "
+                         f"DDPM steps (cosine), guidance {default_guidance:g}"), ("sentences", how)]
+    card = render_family_card(manifest, description or "A diffusion-family bundle (MDM / DiP): denoiser.onnx "
+                              "stepped by DDPM ancestral sampling, decoder.onnx de-normalises the frames.", rows,
+                              notes)
+    (out_dir / "MODEL_CARD.md").write_text(card, encoding="utf-8")
+    files["MODEL_CARD.md"] = out_dir / "MODEL_CARD.md"
+    return write_bundle(out_dir, files, manifest)
