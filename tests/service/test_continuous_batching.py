@@ -121,7 +121,7 @@ def test_the_batcher_lets_a_request_join_a_running_batch(engine):
             futures["short"] = batcher.submit_nowait(_short())
             futures["short"].add_done_callback(lambda _: order.append("short"))
 
-    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step)
+    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step, prepare_ahead=False)  # prepared by the worker: joins at once
     try:
         futures["long"] = batcher.submit_nowait(_long())
         futures["long"].add_done_callback(lambda _: order.append("long"))
@@ -212,3 +212,30 @@ def test_requests_admitted_before_the_newest_cohort_stepped_join_it(engine):
     assert len(session.running) == 1 and session.merged == 1 and session.joins_mid_run == 0
     results = {id(request): result for request, result in _run_until_idle(session)}
     assert _same_motion(results[id(long)], wanted[0]) and _same_motion(results[id(short)], wanted[1])
+
+
+def test_requests_prepared_ahead_by_their_own_thread_get_their_motions(engine):
+    """prepare_ahead (the default): each request's texts are encoded by the preparing thread, not the worker that
+    steps, and the answers are the motions of each request alone."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    wanted = {seed: engine.generate(_short(seed)) for seed in (31, 32, 33)}
+    threads: list[str] = []
+
+    class Recording(OnnxEngine):
+        def prepare(self, requests):
+            threads.append(threading.current_thread().name)
+            return super().prepare(requests)
+
+    recording = Recording(engine.bundle)
+    for ahead, preparer in ((True, "t2m-prepare"), (False, "t2m-engine-0")):     # False: the control
+        threads.clear()
+        batcher = ContinuousBatcher(recording, window_s=0.0, prepare_ahead=ahead)
+        try:
+            futures = {seed: batcher.submit_nowait(_short(seed)) for seed in wanted}
+            got = {seed: future.result(timeout=600) for seed, future in futures.items()}
+        finally:
+            batcher.close()
+        assert threads and set(threads) == {preparer}
+        assert all(_same_motion(got[seed], wanted[seed]) for seed in wanted)
+        assert batcher.queue_depth == 0 and batcher.in_flight == 0

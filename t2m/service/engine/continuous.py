@@ -40,6 +40,18 @@ class PreparedJobs:
     owners: list[int] = field(default_factory=list)
     notes: list[list[str]] = field(default_factory=list)
 
+    @classmethod
+    def joined(cls, parts: Sequence[PreparedJobs | None]) -> PreparedJobs:
+        """Several requests' preparations (each made for its own requests, in order) as one, owners renumbered."""
+        joined = cls(failures=[])
+        for part in parts:
+            assert part is not None
+            joined.owners += [len(joined.failures) + owner for owner in part.owners]
+            joined.failures += part.failures
+            joined.jobs += part.jobs
+            joined.notes += part.notes
+        return joined
+
 
 class _Engine(Protocol):
     """What a continuous session needs from its engine (OnnxEngine)."""
@@ -86,9 +98,10 @@ class RunningCohorts:
     def idle(self) -> bool:
         return not self.running
 
-    def admit(self, requests: Sequence[GenerationRequest]) -> Finished:
-        """Start `requests` as a new cohort at the next step; those failing before sampling are returned at once."""
-        prepared = self.engine.prepare(requests)
+    def admit(self, requests: Sequence[GenerationRequest], prepared: PreparedJobs | None = None) -> Finished:
+        """Start `requests` as a new cohort at the next step; those failing before sampling are returned at once.
+        `prepared`: their jobs made ahead (scheduling's preparing thread), else made here."""
+        prepared = prepared if prepared is not None else self.engine.prepare(requests)
         failed: Finished = [(request, error) for request, error in zip(requests, prepared.failures)
                             if error is not None]
         if prepared.jobs:
