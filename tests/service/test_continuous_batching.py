@@ -121,7 +121,8 @@ def test_the_batcher_lets_a_request_join_a_running_batch(engine):
             futures["short"] = batcher.submit_nowait(_short())
             futures["short"].add_done_callback(lambda _: order.append("short"))
 
-    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step, prepare_ahead=False)  # prepared by the worker: joins at once
+    # prepared by the worker itself, so that it joins at the next boundary
+    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step, prepare_ahead=False)
     try:
         futures["long"] = batcher.submit_nowait(_long())
         futures["long"].add_done_callback(lambda _: order.append("long"))
