@@ -186,6 +186,14 @@ def _export(imported: ImportedDiffusion, statistics: tuple[Path, Path], out_dir:
         return checks.model_card_section()
 
     notes, training_data, license = release_notes(imported)
+    notes += ("\n## Statistics and start\n\n"
+              f"Frames de-normalised with `{statistics[0].name}` / `{statistics[1].name}` (HumanML3D's generation "
+              "statistics, MDM's dataset/HumanML3D; not the evaluator's t2m_mean / t2m_std).")
+    if c.pred_len:
+        notes += (f" The first call continues `prefix.npy`: {c.context_len} frames of standing still made from the "
+                  "mean frame (root and joint velocities 0, feet on the ground); the official code starts from a "
+                  "random test-set clip and the published numbers from ground-truth prefixes.")
+    notes += "\n"
     manifest = export_diffusion_bundle(
         out_dir, model=imported.model, mean=mean, std=std, text_source=text_source_of(imported),
         name=name or default_name(imported), version=version, training_data=training_data, license=license,
