@@ -125,12 +125,13 @@ def denoiser_parity(imported: ImportedDiffusion, out_dir: Path, seed: int = 0) -
     g = torch.Generator().manual_seed(seed)
     cond = torch.from_numpy(np.concatenate([text, np.zeros_like(text)]))
     steps = torch.tensor([c.diffusion_steps - 1, c.diffusion_steps // 2, 1, 0])[:rows]
-    values = {"x_t": torch.randn(rows, frames, c.features, generator=g), "t": steps, "text": cond,
-              "text_mask": None if keys is None else torch.from_numpy(np.concatenate([keys, keys])),
-              "length": torch.tensor([frames] * (rows - 1) + [frames - 7]),
-              "prefix": torch.randn(rows, max(c.context_len, 1), c.features, generator=g)}
+    values: dict[str, torch.Tensor | None] = {
+        "x_t": torch.randn(rows, frames, c.features, generator=g), "t": steps, "text": cond,
+        "text_mask": None if keys is None else torch.from_numpy(np.concatenate([keys, keys])),
+        "length": torch.tensor([frames] * (rows - 1) + [frames - 7]),
+        "prefix": torch.randn(rows, max(c.context_len, 1), c.features, generator=g)}
     names = denoiser_inputs(model)
-    inputs = [values[name] for name in names]
+    inputs = [value for name in names if (value := values[name]) is not None]
     expected = DenoiserGraph(model)(*inputs).numpy()
     (x0,) = _ort(out_dir / "denoiser.onnx").run(["x0"], {n: v.numpy() for n, v in zip(names, inputs)})
     if c.mask_frames:   # a padded frame's output is not used
@@ -138,7 +139,7 @@ def denoiser_parity(imported: ImportedDiffusion, out_dir: Path, seed: int = 0) -
     motion = np.random.default_rng(seed).standard_normal((1, 12, c.features)).astype(np.float32)
     (features,) = _ort(out_dir / "decoder.onnx").run(["features"], {"motion": motion})
     mean, std = np.load(out_dir / "mean.npy"), np.load(out_dir / "std.npy")
-    report = {"denoiser": {"rows": rows, "frames": frames, "steps": steps.tolist(),
+    report: dict[str, dict[str, Any]] = {"denoiser": {"rows": rows, "frames": frames, "steps": steps.tolist(),
                            "max_abs_diff": float(np.abs(x0 - expected).max()),
                            "max_abs_value": float(np.abs(expected).max())},
               "text_encoder": {"max_abs_diff": text_diff},
