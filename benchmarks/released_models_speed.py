@@ -1,4 +1,4 @@
-"""Speed of the three released models (T2M-GPT, MoMask, MoGenTS) at their released sizes, in one run.
+"""Speed of the released models (T2M-GPT, MoMask, MoGenTS; MDM 1000-step and 50-step, DiP) at their released sizes.
 
 No released weights can be fetched here, so each release is written with random values in its exact file layout by
 the test suite's writers (tests/export/*_release_files.py, t2m_gpt_release_keys.py), imported with the importers
@@ -8,8 +8,18 @@ tests/model/openai_clip_format.py), and the three bundles are timed by `t2m benc
 on sizes, not values, so these are the figures of the real releases on this machine; the figures are printed, never
 asserted.
 
+The diffusion family (MDM's paper model with 1000 steps, MDM-50, DiP; tests/export/mdm_release_files.py, DistilBERT
+at distilbert-base-uncased's sizes with the bert-base-uncased vocabulary MiniLM ships, HumanML3D's Mean/Std of the
+test fixtures) gets a table of its own beside them, on 1 and 2 threads (--diffusion-threads): ms per denoiser call
+(guidance's 2 rows batched; MDM at 196 frames, DiP at 20 + 40), a DiP call (2 s of motion: 10 steps), a DiP 10 s
+sentence, a 9.8 s MDM-50 motion (196 frames, its longest; the 1000-step model's is 1000 calls, estimated from the
+call), with the authors' published GPU figures beside them; then the same with denoiser.onnx quantised to int8
+(onnxruntime's dynamic quantisation, t2m.export.writing.quantize) and its parity: max |x0 diff| on one call and the
+max |diff| of a whole seeded run with injected noise, float32 vs int8.
+
     OMP_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python benchmarks/released_models_speed.py [--repeats 3] [--threads 1]
         [--workdir DIR]   (keep the releases and bundles there; bundles already there are reused)
+        [--models mdm-1000,mdm-50,dip]   (a subset; default all six)
 """
 from __future__ import annotations
 
@@ -25,6 +35,8 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "export"))   # the release writers are test helpers
 
+from mdm_release_files import RELEASE_SIZES as MDM_RELEASE  # type: ignore[import-not-found]  # noqa: E402
+from mdm_release_files import make_release as write_mdm  # noqa: E402
 from mogents_release_files import RELEASE as MOGENTS_RELEASE  # type: ignore[import-not-found]  # noqa: E402
 from mogents_release_files import release_states as mogents_states  # noqa: E402
 from mogents_release_files import write_release as write_mogents  # noqa: E402
@@ -34,10 +46,14 @@ from momask_release_files import write_release as write_momask  # noqa: E402
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]  # noqa: E402
 
 from t2m.export.bench.bundles import run_bundle_bench  # noqa: E402
+from t2m.export.importers.diffusion_import import import_dip, import_mdm  # noqa: E402
 from t2m.export.importers.mogents import import_mogents  # noqa: E402
 from t2m.export.importers.momask import import_momask  # noqa: E402
 from t2m.export.importers.t2m_gpt import import_t2m_gpt  # noqa: E402
+from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE  # noqa: E402
+from tests.diffusion.distilbert_folder import write_distilbert_folder  # noqa: E402
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive  # noqa: E402
+from tests.shared_data import HUMANML3D_SAMPLE  # noqa: E402
 
 
 def write_clip(folder: Path) -> Path:
@@ -73,19 +89,51 @@ def import_mogents_release(folder: Path, clip: Path, out: Path) -> None:
     import_mogents(files["logs"], out, clip_weights=clip, check_parity=False)
 
 
+def write_bert(folder: Path) -> Path:
+    """distilbert-base-uncased at its sizes (66.4M parameters + the MLM head, random) in the hub's layout, with
+    the bert-base-uncased vocabulary MiniLM ships (30,522 word pieces)."""
+    from t2m.model.networks.text_encoders import minilm_model_dir
+
+    path = folder / "distilbert-base-uncased"
+    if not (path / "config.json").is_file():
+        vocab = (minilm_model_dir() / "vocab.txt").read_text(encoding="utf-8").splitlines()
+        write_distilbert_folder(path, dict(BERT_RELEASE), vocab)
+    return path
+
+
+def import_mdm_release(release: str) -> Callable[[Path, Path, Path], None]:
+    """MDM's save/<name> folder (args.json + model000200000.pt, 17.9M parameters) at the released sizes, then the
+    import with HumanML3D's Mean/Std."""
+    def run(folder: Path, clip: Path, out: Path) -> None:
+        write_mdm(folder, release, MDM_RELEASE)
+        import_mdm(folder, out, clip_file=clip, humanml3d=HUMANML3D_SAMPLE, check_parity=False)
+
+    return run
+
+
+def import_dip_release(folder: Path, clip: Path, out: Path) -> None:
+    """DiP's folder (args.json + {'model', 'model_avg'}, 26.4M parameters) and a DistilBERT folder, then the import."""
+    write_mdm(folder, "dip", MDM_RELEASE)
+    import_dip(folder, out, bert_dir=write_bert(folder.parents[1] / "bert"), humanml3d=HUMANML3D_SAMPLE,
+               check_parity=False)
+
+
 IMPORTS: dict[str, Callable[[Path, Path, Path], None]] = {
-    "t2m-gpt": import_t2m_gpt_release, "momask": import_momask_release, "mogents": import_mogents_release}
+    "t2m-gpt": import_t2m_gpt_release, "momask": import_momask_release, "mogents": import_mogents_release,
+    "mdm-1000": import_mdm_release("paper"), "mdm-50": import_mdm_release("fifty"), "dip": import_dip_release}
+DIFFUSION = ("mdm-1000", "mdm-50", "dip")
 
 
 def folder_mb(folder: Path) -> float:
     return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) / 1e6
 
 
-def build_bundles(workdir: Path) -> list[Path]:
+def build_bundles(workdir: Path, models: list[str]) -> list[Path]:
     """One bundle per release in workdir/bundles (reused when already there); prints how long each import took."""
     clip = write_clip(workdir / "clip")
     bundles = []
-    for name, run_import in IMPORTS.items():
+    for name in models:
+        run_import = IMPORTS[name]
         out = workdir / "bundles" / name
         if not (out / "manifest.json").is_file():
             start = time.perf_counter()
@@ -102,15 +150,32 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads (default 1)")
     parser.add_argument("--workdir", type=Path, default=None,
                         help="keep releases and bundles here (default: a temporary folder, removed at the end)")
+    parser.add_argument("--models", default=",".join(IMPORTS),
+                        help=f"comma-separated subset of {','.join(IMPORTS)} (default all)")
+    parser.add_argument("--diffusion-threads", default="1,2",
+                        help="the diffusion table's onnxruntime threads, comma-separated (default 1,2)")
     args = parser.parse_args(argv)
+    models = [name for name in args.models.split(",") if name]
+    unknown = sorted(set(models) - set(IMPORTS))
+    if unknown:
+        parser.error(f"--models: unknown {', '.join(unknown)} (known: {', '.join(IMPORTS)})")
     if args.repeats < 1 or args.threads < 1:
         parser.error("--repeats and --threads must be >= 1")
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory(prefix="released-speed-") as temporary:
         workdir = args.workdir or Path(temporary)
-        bundles = build_bundles(workdir)
+        bundles = build_bundles(workdir, models)
         print()
-        run_bundle_bench(bundles, repeats=args.repeats, threads=args.threads)
+        tokens = [bundle for name, bundle in zip(models, bundles) if name not in DIFFUSION]
+        if tokens:
+            run_bundle_bench(tokens, repeats=args.repeats, threads=args.threads)
+        diffusion = {name: bundle for name, bundle in zip(models, bundles) if name in DIFFUSION}
+        if diffusion:
+            from t2m.export.bench.diffusion_speed import run_diffusion_speed
+
+            print()
+            run_diffusion_speed(diffusion, workdir / "int8", [int(n) for n in args.diffusion_threads.split(",")],
+                                repeats=args.repeats)
     return 0
 
 

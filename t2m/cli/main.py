@@ -17,7 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("t2m.cli.commands.train", "train the VQ-VAE, the GPT or the evaluator"),
     "eval": ("t2m.cli.commands.evaluate", "evaluate trained models (FID, R-precision, ...)"),
     "export": ("t2m.cli.commands.export", "export trained models to an ONNX bundle"),
-    "import": ("t2m.cli.commands.importer", "import released checkpoints (T2M-GPT, MoMask) as a bundle"),
+    "import": ("t2m.cli.commands.importer", "import released checkpoints (T2M-GPT, MoMask, MoGenTS, MDM, DiP)"),
     "index-captions": ("t2m.cli.commands.index_captions", "index a bundle's training captions (unknown-text warnings)"),
     "quantize": ("t2m.cli.commands.quantize", "quantise a GPT bundle's step graph (int8 or int4 weights)"),
     "bench": ("t2m.cli.commands.bench", "benchmark generation speed"),

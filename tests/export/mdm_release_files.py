@@ -17,6 +17,8 @@ from pathlib import Path
 import torch
 
 from t2m.model.networks.gpt import sinusoid_table
+from tests.diffusion.distilbert_folder import write_distilbert_folder
+from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
 
 @dataclass(frozen=True)
@@ -100,3 +102,32 @@ def write_release(root: Path, args: dict, state: dict[str, torch.Tensor],
     torch.save(state if ema is None else {"model": state, "model_avg": ema}, root / name)
     torch.save({"state": {}, "param_groups": []}, root / ("opt" + name.removeprefix("model")))
     return root
+
+
+# the small text encoders of the default suite: a 2-layer CLIP tower with ViT-B/32's 512-d features, a 1-layer
+# DistilBERT with the released width (768: embed_text takes 768-d states)
+SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}
+SMALL_BERT = {"max_position_embeddings": 64, "dim": 768, "n_layers": 1, "n_heads": 12, "hidden_dim": 64}
+# name -> (args.json, trans_dec); trans_dec is also the DistilBERT text encoder in these releases
+RELEASES = {"paper": (PAPER_ARGS, False), "fifty": (FIFTY_ARGS, False), "bert": (BERT_ARGS, True),
+            "dip": (DIP_ARGS, True)}
+
+
+def small_clip_archive(folder: Path) -> Path:
+    return save_torchscript_archive(openai_clip_state(**SMALL_CLIP, seed=5), folder / "ViT-B-32.pt")
+
+
+def small_bert_folder(folder: Path) -> Path:
+    return write_distilbert_folder(folder / "distilbert-base-uncased", SMALL_BERT)
+
+
+def make_release(root: Path, name: str, sizes: ReleaseSizes = SMALL_SIZES, **args_changes
+                 ) -> tuple[Path, dict[str, torch.Tensor]]:
+    """A release folder and the state dict an import must read (model_avg for the EMA releases)."""
+    base, decoder = RELEASES[name]
+    args = release_args(base, sizes) | args_changes
+    text_dim = 768 if args.get("text_encoder_type") == "bert" else 512
+    state = release_state(decoder, text_dim, sizes, seed=1)
+    ema = release_state(decoder, text_dim, sizes, seed=2) if args.get("use_ema") else None
+    write_release(root, args, state, ema)
+    return root, (ema if ema is not None else state)

@@ -13,16 +13,14 @@ import numpy as np
 import pytest
 import torch
 from mdm_release_files import (
-    BERT_ARGS,
-    DIP_ARGS,
-    FIFTY_ARGS,
-    PAPER_ARGS,
     RELEASE_SIZES,
+    RELEASES,
+    SMALL_BERT,
+    SMALL_CLIP,
     SMALL_SIZES,
-    ReleaseSizes,
-    release_args,
-    release_state,
-    write_release,
+    make_release,
+    small_bert_folder,
+    small_clip_archive,
 )
 
 from t2m.export.graphs.export import ort_session
@@ -36,40 +34,24 @@ from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE
 from tests.diffusion.distilbert_folder import hub_state, tiny_vocab, write_distilbert_folder
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
-SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}
-SMALL_BERT = {"max_position_embeddings": 64, "dim": 768, "n_layers": 1, "n_heads": 12, "hidden_dim": 64}
-RELEASES = {"paper": (PAPER_ARGS, False), "fifty": (FIFTY_ARGS, False), "bert": (BERT_ARGS, True),
-            "dip": (DIP_ARGS, True)}
-
 
 @pytest.fixture(scope="module")
 def clip_archive(tmp_path_factory) -> Path:
-    return save_torchscript_archive(openai_clip_state(**SMALL_CLIP, seed=5),
-                                    tmp_path_factory.mktemp("clip") / "ViT-B-32.pt")
+    return small_clip_archive(tmp_path_factory.mktemp("clip"))
 
 
 @pytest.fixture(scope="module")
 def bert_dir(tmp_path_factory) -> Path:
     """A small DistilBERT with the released width (768: embed_text takes 768-d states)."""
-    return write_distilbert_folder(tmp_path_factory.mktemp("bert") / "distilbert-base-uncased", SMALL_BERT)
-
-
-def make_release(root: Path, name: str, sizes: ReleaseSizes = SMALL_SIZES, **args_changes
-                 ) -> tuple[Path, dict[str, torch.Tensor]]:
-    """A release folder and the state dict an import must read (model_avg for the EMA releases)."""
-    base, decoder = RELEASES[name]
-    args = release_args(base, sizes) | args_changes
-    text_dim = 768 if args.get("text_encoder_type") == "bert" else 512
-    state = release_state(decoder, text_dim, sizes, seed=1)
-    ema = release_state(decoder, text_dim, sizes, seed=2) if args.get("use_ema") else None
-    write_release(root, args, state, ema)
-    return root, (ema if ema is not None else state)
+    return small_bert_folder(tmp_path_factory.mktemp("bert"))
 
 
 def load(name: str, folder: Path, clip: Path, bert: Path, **options):
     if name == "dip":
         return load_dip_release(folder, bert, **options)
-    return load_mdm_release(folder, clip, bert, **options)
+    if RELEASES[name][1]:
+        return load_mdm_release(folder, bert_dir=bert, **options)
+    return load_mdm_release(folder, clip, **options)
 
 
 def denoiser_inputs(config: DiffusionConfig, batch: int = 3, frames: int = 12, seed: int = 0) -> dict:
@@ -149,7 +131,8 @@ def test_text_graphs_of_an_import(tmp_path, bert_dir):
     session = ort_session(tmp_path / "graph" / "text_encoder.onnx")
     for texts in (["a person walks forward"], ["she jumps", "a man waves with the right hand twice", "he bows"]):
         ids, mask = text.tokenize(texts)
-        states, keys = session.run(None, {"input_ids": ids.numpy(), "attention_mask": mask.numpy()})
+        (states,) = session.run(["token_states"], {"input_ids": ids.numpy(), "attention_mask": mask.numpy()})
+        keys = mask.numpy() != 0
         expected, expected_keys = text.encode(texts)
         assert states.shape[-1] == 768 and np.array_equal(keys, expected_keys)
         assert np.abs((states - expected) * keys[..., None]).max() < 2e-5
@@ -288,8 +271,9 @@ def test_released_sizes(tmp_path):
         66_362_880 - (30522 - len(vocab)) * 768)
     token_states_text_source(text).write(tmp_path / "graph")
     ids, mask = text.tokenize(["a person walks forward", "she throws a ball with her left hand and crouches"])
-    states, keys = ort_session(tmp_path / "graph" / "text_encoder.onnx").run(
-        None, {"input_ids": ids.numpy(), "attention_mask": mask.numpy()})
+    (states,) = ort_session(tmp_path / "graph" / "text_encoder.onnx").run(
+        ["token_states"], {"input_ids": ids.numpy(), "attention_mask": mask.numpy()})
+    keys = mask.numpy() != 0
     expected, _ = text.encode(["a person walks forward", "she throws a ball with her left hand and crouches"])
     diff = float(np.abs((states - expected) * keys[..., None]).max())
     print(f"\nDiP text graph vs module at distilbert-base-uncased's sizes: max |diff| {diff:.1e}")

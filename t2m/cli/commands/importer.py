@@ -16,6 +16,14 @@ reads MoMask's release as it unpacks (docs/masked-family.md "Importing MoMask");
     t2m import mogents logs/humanml3d --clip ViT-B-32.pt -o models/mogents
 
 reads MoGenTS's release likewise (docs/masked-family.md "Importing MoGenTS"), with the same file options.
+
+    t2m import mdm save/humanml_trans_enc_512 --clip ViT-B-32.pt --humanml3d dataset/HumanML3D -o models/mdm
+    t2m import dip save/DiP_no-target_10steps_context20_predict40 --bert distilbert-base-uncased \
+        --humanml3d dataset/HumanML3D -o models/dip
+
+read MDM's and DiP's release folders (args.json + model<step>.pt; docs/diffusion-family.md "Importing MDM and
+DiP"): the CLIP file for MDM's CLIP releases, a Hugging Face distilbert-base-uncased folder for the DistilBERT ones
+and DiP, and HumanML3D's Mean.npy / Std.npy (not in the release folder).
 """
 from __future__ import annotations
 
@@ -43,12 +51,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_common_options(t2m)
     t2m.set_defaults(func=run_t2m_gpt)
     register_momask(sources)
+    register_diffusion(sources)
 
 
-def add_common_options(parser: argparse.ArgumentParser) -> None:
-    """The options every importer has: the CLIP file, the bundle's version, pickles, parity, the output folder."""
-    parser.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt",
-                        help="OpenAI's CLIP ViT-B/32 weights (local file)")
+def add_common_options(parser: argparse.ArgumentParser, clip: bool = True) -> None:
+    """The options every importer has: the CLIP file (``clip``), the bundle's version, pickles, parity, the output
+    folder."""
+    if clip:
+        parser.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt",
+                            help="OpenAI's CLIP ViT-B/32 weights (local file)")
     parser.add_argument("--version", default="1.0.0")
     parser.add_argument("--allow-pickle", action="store_true",
                         help="load checkpoints holding more than tensors with the full unpickler (trusted files only)")
@@ -139,4 +150,62 @@ def run_t2m_gpt(args: argparse.Namespace) -> int:
     )
     print(json.dumps({"parity": checks.parity, "int8": checks.int8}, indent=2))
     _report("T2M-GPT", manifest, args.output)
+    return 0
+
+
+DIFFUSION = {
+    "mdm": ("MDM (save/<name>: args.json + model<step>.pt; the paper model, the 50-step and DistilBERT variants)",
+            "Import an MDM release folder as a diffusion-family bundle: the trained number of DDPM steps, guidance "
+            "2.5; CLIP releases need --clip, the DistilBERT variant --bert."),
+    "dip": ("DiP (DiP_no-target_10steps_context20_predict40: args.json + model<step>.pt, DistilBERT)",
+            "Import DiP's release folder as a diffusion-family bundle: 40-frame calls after 20 frames in 10 steps, "
+            "guidance 7.5, starting from a standing pose (prefix.npy)."),
+}
+
+
+def register_diffusion(sources: argparse._SubParsersAction) -> None:
+    """`t2m import mdm` and `t2m import dip`: a release folder, its text encoder, HumanML3D's statistics."""
+    for release, (summary, description) in DIFFUSION.items():
+        parser = sources.add_parser(release, help=summary, description=description)
+        parser.add_argument("release", type=Path, nargs="?", default=None, metavar="FOLDER",
+                            help="the release folder (the official save/<name>/: args.json, model<step>.pt)")
+        parser.add_argument("--model", type=Path, default=None, metavar="FILE",
+                            help="the weights file, when the folder holds several model<step>.pt")
+        if release == "mdm":
+            parser.add_argument("--clip", type=Path, default=None, metavar="ViT-B-32.pt",
+                                help="OpenAI's CLIP ViT-B/32 weights (CLIP releases)")
+        parser.add_argument("--bert", type=Path, default=None, metavar="DIR",
+                            help="a Hugging Face distilbert-base-uncased folder (DistilBERT releases"
+                                 + (")" if release == "mdm" else "; required)"))
+        stats = parser.add_argument_group("HumanML3D's generation statistics (not in the release folder)")
+        stats.add_argument("--humanml3d", type=Path, default=None, metavar="DIR",
+                           help="HumanML3D's folder with Mean.npy and Std.npy (MDM's dataset/HumanML3D)")
+        stats.add_argument("--mean", type=Path, default=None, metavar="Mean.npy", help="overrides the folder's")
+        stats.add_argument("--std", type=Path, default=None, metavar="Std.npy", help="overrides the folder's")
+        parser.add_argument("--name", default=None,
+                            help="bundle name (default mdm-humanml3d-<steps>steps[-distilbert] / dip-humanml3d)")
+        add_common_options(parser, clip=False)
+        parser.set_defaults(func=run_diffusion, import_release=release)
+
+
+def run_diffusion(args: argparse.Namespace) -> int:
+    import logging
+
+    from t2m.export.importers.diffusion_import import import_dip, import_mdm
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    common = {"bert_dir": args.bert, "model_file": args.model, "humanml3d": args.humanml3d, "mean": args.mean,
+              "std": args.std, "name": args.name, "version": args.version, "check_parity": not args.skip_parity,
+              "allow_pickle": args.allow_pickle}
+    if args.import_release == "mdm":
+        manifest, checks = import_mdm(args.release, args.output, clip_file=args.clip, **common)
+    else:
+        manifest, checks = import_dip(args.release, args.output, **common)
+    print(json.dumps({"parity": checks.parity}, indent=2))
+    from t2m.bundle import get_family, parse_manifest
+
+    typed = parse_manifest(manifest)
+    line = get_family(typed.family).describe(typed, typed.default_guidance)
+    print(f"imported {manifest['name']} ({line}; at most {typed.max_tokens} frames a sentence) into {args.output} "
+          "(verified)")
     return 0

@@ -7,7 +7,7 @@ write_bundle against the family's signatures.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +49,13 @@ def export_diffusion_bundle(
     version: str, training_data: Mapping[str, str], license: str, default_guidance: float,
     unconditional_branch: bool = True, max_frames: int = MDM_MAX_FRAMES, join_frames: int = JOIN_FRAMES,
     join_context: int = JOIN_CONTEXT, prefix: np.ndarray | None = None, description: str = "",
-    notes: str = "") -> dict[str, Any]:
+    notes: str = "", checks: Callable[[Path], str] | None = None) -> dict[str, Any]:
     """Write and verify the bundle; returns the written manifest. `max_frames`: the longest segment (MDM: 196; a
     DiP model has no limit of its own: how long one sentence may run); `prefix` [context_len, F] normalised frames
     before DiP's first call (default: standing_prefix of mean/std); `join_frames` / `join_context`: MDM's
-    in-between window at each join of sentences (0 join frames: the sentences are put end to end as made)."""
+    in-between window at each join of sentences (0 join frames: the sentences are put end to end as made);
+    `checks(out_dir)`, called once the graphs are written (an importer's parity against its modules), returns
+    Markdown the card adds after `notes`."""
     from t2m.export.graphs.diffusion import export_denoiser, export_denormaliser
     from t2m.export.writing.bundle import motion_fields, render_family_card, write_bundle
 
@@ -79,6 +81,8 @@ def export_diffusion_bundle(
             raise ValueError(f"prefix must be [{c.context_len}, {c.features}], got {first.shape}")
         np.save(out_dir / PREFIX_FILE, first)
         files[PREFIX_FILE] = out_dir / PREFIX_FILE
+    if checks is not None:
+        notes = notes + "\n" + checks(out_dir)
     block = {"arch": c.arch, "steps": c.diffusion_steps, "default_guidance": float(default_guidance),
              "unconditional_branch": bool(unconditional_branch),
              "text_conditioning": "tokens" if c.text_tokens else "pooled", "mask_frames": c.mask_frames,

@@ -35,8 +35,7 @@ class TinyTokenEncoder(TinyTextEncoder):
 
 def tiny_token_text_source(dim: int = TEXT_DIM, max_length: int = TEXT_MAX_LENGTH, seed: int = 0) -> TextSource:
     """The tiny tokenizer and a TinyTokenEncoder as a token-state text graph (`token_states`)."""
-    from t2m.export.graphs.diffusion import export_token_text_graph
-    from t2m.export.graphs.text import build_tiny_tokenizer, tokenize, write_tokenizer
+    from t2m.export.graphs.text import build_tiny_tokenizer, export_token_states_graph, tokenize, write_tokenizer
 
     def write(out_dir: Path) -> dict:
         tokenizer = build_tiny_tokenizer()
@@ -44,8 +43,8 @@ def tiny_token_text_source(dim: int = TEXT_DIM, max_length: int = TEXT_MAX_LENGT
                                tokenizer.token_to_id("[PAD]"))
         encoder = TinyTokenEncoder(tokenizer.get_vocab_size(), dim, seed=seed)
         ids, mask = tokenize(path, ["a person walks", "a man jumps up and down twice"])
-        export_token_text_graph(encoder, out_dir / "text_encoder.onnx", ids, mask)
-        return {"kind": "tiny-random-tokens", "dim": dim, "max_length": max_length, "pooling": "none",
+        export_token_states_graph(encoder, out_dir / "text_encoder.onnx", ids, mask)
+        return {"kind": "tiny-random-tokens", "dim": dim, "max_length": max_length, "pooling": "tokens",
                 "normalize": False, "null_condition": "zeros"}
 
     return TextSource(write)

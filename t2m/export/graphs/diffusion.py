@@ -5,7 +5,8 @@
   frames), prefix [B, P, F] (only DiP) -> x0 [B, T, F]; batch, frames and text tokens are dynamic axes;
 - decoder.onnx: motion [B, T, F] (normalised frames) -> features [B, T, F] = motion * std + mean;
 - text_encoder.onnx of a token-state encoder: input_ids, attention_mask [B, L] -> token_states [B, L, Dt] (the
-  states of every token; padded positions are masked by the denoiser's text_mask).
+  states of every token; padded positions are masked by the denoiser's text_mask), written by
+  t2m.export.graphs.text.export_token_states_graph.
 """
 from __future__ import annotations
 
@@ -18,8 +19,7 @@ from torch import nn
 from t2m.export.graphs.export import export_graph
 from t2m.model.networks.diffusion import MDM
 
-__all__ = ["DenoiserGraph", "Denormalise", "denoiser_inputs", "export_denoiser", "export_denormaliser",
-           "export_token_text_graph"]
+__all__ = ["DenoiserGraph", "Denormalise", "denoiser_inputs", "export_denoiser", "export_denormaliser"]
 
 
 def denoiser_inputs(model: MDM) -> list[str]:
@@ -87,15 +87,3 @@ def export_denormaliser(mean: np.ndarray, std: np.ndarray, path: str | Path) -> 
     return export_graph(Denormalise(mean, std), (torch.zeros(1, 4, len(mean)),), path, ["motion"], ["features"],
                         {"motion": {0: "batch", 1: "frames"}, "features": {0: "batch", 1: "frames"}})
 
-
-def export_token_text_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor,
-                            example_mask: torch.Tensor) -> Path:
-    """Write a token-state text_encoder.onnx from ``module(input_ids, attention_mask) -> [B, L, Dt]``."""
-    from t2m.export.graphs.text import _restore_dropped_inputs
-
-    names = ["input_ids", "attention_mask"]
-    path = export_graph(module.eval(), (example_ids, example_mask), path, names, ["token_states"],
-                        {"input_ids": {0: "batch", 1: "tokens"}, "attention_mask": {0: "batch", 1: "tokens"},
-                         "token_states": {0: "batch", 1: "tokens"}})
-    _restore_dropped_inputs(path, names)
-    return path

@@ -35,20 +35,31 @@ def export_text_graph(module: nn.Module, path: str | Path, example_ids: torch.Te
     return path
 
 
+class _StatesOnly(nn.Module):
+    """A token-state module's states alone: encoders that also return their padding mask (DistilBertTokenStates)
+    give it up here, since the service masks the padding from the tokenizer's own attention mask."""
+
+    def __init__(self, module: nn.Module) -> None:
+        super().__init__()
+        self.module = module
+
+    def forward(self, input_ids: torch.Tensor, attention_mask: torch.Tensor) -> torch.Tensor:
+        out = self.module(input_ids, attention_mask)
+        return out[0] if isinstance(out, tuple) else out
+
+
 def export_token_states_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor,
                               example_mask: torch.Tensor) -> Path:
-    """Write a token-state text graph (DiP's DistilBERT, MiniLM's states) from ``module(input_ids, attention_mask)
-    -> (text_states [B, L, Dt], text_mask [B, L] bool)``: nothing pooled, B and L dynamic; the mask is the
-    attention mask as booleans (True = a real token), what the denoiser's cross-attention takes."""
-    return export_graph(
-        module.eval(),
-        (example_ids, example_mask),
-        path,
-        input_names=["input_ids", "attention_mask"],
-        output_names=["text_states", "text_mask"],
-        dynamic_axes={"input_ids": {0: "batch", 1: "tokens"}, "attention_mask": {0: "batch", 1: "tokens"},
-                      "text_states": {0: "batch", 1: "tokens"}, "text_mask": {0: "batch", 1: "tokens"}},
-    )
+    """Write a token-state text graph (DiP's DistilBERT, MiniLM's states; the diffusion family's contract,
+    t2m/families/diffusion.py) from ``module(input_ids, attention_mask) -> [B, L, Dt]`` (or ``(states, mask)``):
+    input_ids, attention_mask int64 [B, L] -> token_states float32 [B, L, Dt], every token's state, nothing pooled,
+    B and L dynamic; padded positions hold values the denoiser's text_mask hides."""
+    names = ["input_ids", "attention_mask"]
+    path = export_graph(_StatesOnly(module).eval(), (example_ids, example_mask), path, input_names=names,
+                        output_names=["token_states"],
+                        dynamic_axes={name: {0: "batch", 1: "tokens"} for name in [*names, "token_states"]})
+    _restore_dropped_inputs(path, names)
+    return path
 
 
 def _restore_dropped_inputs(path: str | Path, names: list[str]) -> None:

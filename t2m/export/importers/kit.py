@@ -124,13 +124,13 @@ def load_checked(module: nn.Module, state: Mapping[str, torch.Tensor], where: st
     return module.eval()
 
 
-def read_stat(path: Path, feat_dim: int) -> np.ndarray:
-    """meta/mean.npy or std.npy: [feat_dim] float32."""
+def read_stat(path: Path, feat_dim: int, what: str = "the VQ's features") -> np.ndarray:
+    """meta/mean.npy or std.npy: [feat_dim] float32 (``what``: whose features, for the refusal)."""
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError) as error:
         raise ValueError(f"{path}: not a numpy array file ({' '.join(str(error).split())[:160]})") from None
     array = np.asarray(array, dtype=np.float32).reshape(-1)
     if array.shape != (feat_dim,):
-        raise ValueError(f"{path}: expected [{feat_dim}] values (the VQ's features), got {list(array.shape)}")
+        raise ValueError(f"{path}: expected [{feat_dim}] values ({what}), got {list(array.shape)}")
     return array

@@ -135,16 +135,20 @@ def build_text_encoder(config: DiffusionConfig, clip_file: str | Path | None, be
     """The release's text encoder: CLIP ViT-B/32 cut to 20 tokens (text_encoder_type clip) or DistilBERT token
     states (bert), with its output size checked against the denoiser's ``embed_text``."""
     encoder: MdmClipEncoder | TokenStateEncoder
+    kind = "DistilBERT (args.json: text_encoder_type 'bert')" if config.text_tokens else (
+        "CLIP ViT-B/32 (args.json: text_encoder_type 'clip')")
+    if config.text_tokens and clip_file is not None:
+        raise ValueError(f"--clip {clip_file}: {release}'s text encoder is {kind}, not CLIP: {BERT_FOLDER}")
+    if not config.text_tokens and bert_dir is not None:
+        raise ValueError(f"--bert {bert_dir}: {release}'s text encoder is {kind}, not DistilBERT: {CLIP_FILE}")
     if config.text_tokens:
         if bert_dir is None:
-            raise ValueError(f"{release}'s text encoder is DistilBERT (args.json: text_encoder_type 'bert'): "
-                             f"{BERT_FOLDER}")
+            raise ValueError(f"{release}'s text encoder is {kind}: {BERT_FOLDER}")
         encoder = distilbert_encoder(bert_dir)
         source = f"{bert_dir}: DistilBERT dim"
     else:
         if clip_file is None:
-            raise ValueError(f"{release}'s text encoder is CLIP ViT-B/32 (args.json: text_encoder_type 'clip'): "
-                             f"{CLIP_FILE}")
+            raise ValueError(f"{release}'s text encoder is {kind}: {CLIP_FILE}")
         if not Path(clip_file).is_file():
             raise ValueError(f"{clip_file}: missing file: CLIP ViT-B/32 weights (OpenAI's ViT-B-32.pt)")
         encoder = MdmClipEncoder(clip_file)

@@ -76,7 +76,7 @@ def mdm_clip_text_source(weights: str | Path) -> TextSource:
 
 def token_states_text_source(encoder: Any) -> TextSource:
     """A t2m.model.networks.diffusion_text.TokenStateEncoder (DiP's DistilBERT, MiniLM's states): the token-state
-    graph (text_states, text_mask) and its tokenizer.json; the manifest entry says ``pooling: tokens``."""
+    graph (token_states) and its tokenizer.json; the manifest entry says ``pooling: tokens``."""
 
     def write(out_dir: Path) -> dict:
         encoder.save_tokenizer(out_dir / "tokenizer.json")

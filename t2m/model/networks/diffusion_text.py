@@ -104,8 +104,9 @@ def mdm_clip_features(encoder: MdmClipEncoder, texts: list[str],
 
 class TokenStateEncoder(TokenizedModule):
     """A frozen token-state text encoder: a `tokenizers` Tokenizer (set to its truncation and padding) and a module
-    (input_ids, attention_mask) -> (text_states [N, L, dim], text_mask [N, L] bool), which the token-state text
-    graph exports. ``pooling`` is ``"tokens"``: nothing is pooled."""
+    (input_ids, attention_mask) -> (text_states [N, L, dim], text_mask [N, L] bool); the token-state text graph
+    exports the states (``token_states``), the service masks padding from the tokenizer's attention mask.
+    ``pooling`` is ``"tokens"``: nothing is pooled."""
 
     pooling = "tokens"
     normalize = False

@@ -155,9 +155,10 @@ class DistilBert(nn.Module):
 
 
 class DistilBertTokenStates(nn.Module):
-    """The token-state text graph's module: (input_ids, attention_mask) -> (text_states [B, L, dim] float32,
-    text_mask [B, L] bool, True = a real token), what MDM's ``trans_dec`` takes as memory and its padding mask
-    (a token-state encoder of any BERT-like ``bert`` module with HF's ``last_hidden_state`` works too)."""
+    """The token-state encoder's module: (input_ids, attention_mask) -> (text_states [B, L, dim] float32,
+    text_mask [B, L] bool, True = a real token), what MDM's ``trans_dec`` takes as memory and its padding mask (the
+    graph exports the states as ``token_states``; a token-state encoder of any BERT-like ``bert`` module with HF's
+    ``last_hidden_state`` works too)."""
 
     def __init__(self, bert: nn.Module) -> None:
         super().__init__()
