@@ -24,6 +24,7 @@ from t2m.service.formats import (
     stream_frames,
     stream_start,
 )
+from t2m.service.handles import make_handle
 from t2m.service.registry import ServedModel
 from t2m.service.scheduling import GenerationTimeout, QueueFullError
 from t2m.service.schemas import (
@@ -37,7 +38,7 @@ from t2m.service.schemas import (
 from t2m.service.settings import Settings
 from t2m.service.streaming import MotionStream
 
-__all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "router"]
+__all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "http_error", "router"]
 
 RANDOM_SEED_BITS = 31   # seeds we pick fit any client's integers (JavaScript included)
 STREAM_CHUNK_FRAMES = 40   # frames per message of what is sent with the whole motion (2 s at 20 fps)
@@ -89,10 +90,11 @@ async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_st
     try:
         motion = await model.batcher.generate(request, settings.request_timeout_s)
     except Exception as error:
-        raise _http_error(error, settings) from None
+        raise http_error(error, settings) from None
     state.metrics.count_generation(model.name, motion.tokens, len(motion.segments))
 
-    rendered = await run_in_threadpool(render, motion, body.format, limits)
+    handle = make_handle(limits, request, motion.codes) if body.format == "json" else None
+    rendered = await run_in_threadpool(render, motion, body.format, limits, handle)
     headers = {"X-Seed": str(motion.seed)}
     if motion.warnings:
         # headers are latin-1: anything else (e.g. a model name) becomes '?'
@@ -102,7 +104,7 @@ async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_st
     return Response(content=rendered.body, media_type=rendered.media_type, headers=headers)
 
 
-def _http_error(error: Exception, settings: Settings) -> Exception:
+def http_error(error: Exception, settings: Settings) -> Exception:
     """The HTTP answer for a failed generation; an error without one (an engine failure) is itself, a 500."""
     if isinstance(error, QueueFullError):
         return HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, detail=f"server busy: {error}",
@@ -131,7 +133,7 @@ async def _stream(model: ServedModel, request: GenerationRequest, state: Service
     except Exception as error:
         if stream is not None:
             stream.close()
-        raise _http_error(error, state.settings) from None
+        raise http_error(error, state.settings) from None
     state.metrics.first_frame.labels(model.name).observe(time.perf_counter() - started)
     # X-Accel-Buffering: a proxy such as nginx passes each message on at once instead of buffering the answer
     headers = {"X-Seed": str(request.seed), "Cache-Control": "no-store", "X-Accel-Buffering": "no"}
@@ -153,9 +155,9 @@ async def _messages(stream: MotionStream, first: Any, model: ServedModel,
         for start in range(sent, len(item.joints), STREAM_CHUNK_FRAMES):
             yield ndjson(stream_frames(start, item.joints[start:start + STREAM_CHUNK_FRAMES]))
         state.metrics.count_generation(model.name, item.tokens, len(item.segments))
-        yield ndjson(stream_end(item, limits))
+        yield ndjson(stream_end(item, limits, make_handle(limits, stream.request, item.codes)))
     except Exception as error:   # the 200 has gone out: the failure can only be told in the stream
-        answer = _http_error(error, state.settings)
+        answer = http_error(error, state.settings)
         if isinstance(answer, HTTPException):
             yield ndjson(stream_error(answer.status_code, str(answer.detail)))
         else:

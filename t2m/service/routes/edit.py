@@ -1,0 +1,132 @@
+"""POST /edit: a motion the service made (its answer's `handle`) with some segments sampled again or added, the other
+segments' codes kept, all decoded once: the motion outside the edited segments and the decoder's reach of them is the
+handle's, bit for bit (docs/api.md states the rule). Stateless: the handle carries everything (service/handles.py)."""
+from __future__ import annotations
+
+import asyncio
+import re
+from typing import Any
+
+from fastapi import APIRouter, Depends, Response
+from fastapi.exceptions import RequestValidationError
+from starlette.concurrency import run_in_threadpool
+
+from t2m.service.dependencies import ServiceState, ready_state, require_api_key
+from t2m.service.editing import EditError, EditPlan, plan_edit
+from t2m.service.engine.types import Motion, RequestLimitError
+from t2m.service.formats import render
+from t2m.service.handles import HandleError, make_handle, read_handle
+from t2m.service.registry import ServedModel
+from t2m.service.routes.generate import _RESPONSES, http_error
+from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["generation"])
+
+_EDIT_RESPONSES: dict[int | str, dict[str, Any]] = {
+    **_RESPONSES,
+    200: {**_RESPONSES[200], "description": "The edited motion. json: EditResponse (with a new handle); bvh: BVH "
+                                            "text; glb: glTF binary. Header X-Seed: the handle's seed."},
+    422: {"description": "A field is wrong (FastAPI's shape: detail = [{loc, msg, type, input}]): e.g. a handle "
+                         "that is corrupted, altered, out of the model's ranges or from another model (loc body, "
+                         "handle), a segment index it lacks, an edit kind the model's family does not support."},
+}
+
+
+def _handle_error(error: HandleError) -> RequestValidationError:
+    return RequestValidationError([{"type": "value_error", "loc": ("body", "handle"), "msg": str(error),
+                                    "input": None}])
+
+
+def _model_of(body: EditRequest, state: ServiceState) -> ServedModel:
+    """The model the body names, else the one the handle names (read before it is checked: the model checks it)."""
+    assert state.models is not None
+    if body.model is not None:
+        model = state.models.get(body.model)
+        if model is None:
+            raise RequestValidationError([unknown_model_error(body.model, state.models.names)])
+        return model
+    for candidate in state.models:
+        try:
+            read_handle(body.handle, candidate.limits)
+        except HandleError as error:
+            if error.part != "handle.model":
+                raise _handle_error(error) from None
+            continue
+        return candidate
+    raise RequestValidationError([{"type": "value_error", "loc": ("body", "handle"), "input": None, "msg":
+                                   "handle.model: made by a model (name and version) this service does not serve "
+                                   f"({', '.join(repr(name) for name in state.models.names)})"}])
+
+
+@router.post("/edit", response_model=EditResponse, responses=_EDIT_RESPONSES, dependencies=[Depends(require_api_key)],
+             summary="Edit a motion: regenerate some segments, append or prepend others, keep the rest")
+async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) -> Response:
+    """`handle` is a json answer's handle (of /generate or /edit). Each regenerate edit samples its segment again (a
+    new text, seed or duration); append and prepend edits add segments; every other segment keeps its codes, and
+    the codes are decoded once, so frames away from the edited segments are the handle's motion's exactly. No edits
+    answers the handle's motion again. The model must be the one (name and version) that made the handle; a family
+    answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`)."""
+    model = _model_of(body, state)
+    limits = model.limits
+    try:
+        handle = read_handle(body.handle, limits)
+        plan = plan_edit(handle, body.edits, limits)
+    except HandleError as error:
+        raise _handle_error(error) from None
+    except EditError as error:
+        raise RequestValidationError([error.error()]) from None
+    sampled = await _sample(plan, model, state)
+    compose = getattr(model.engine, "compose", None)
+    if compose is None:
+        raise _handle_error(HandleError("handle", f"model {limits.name!r} cannot decode codes it is given"))
+    request = plan.request(handle)
+    motion: Motion = await run_in_threadpool(compose, request, plan.codes([m.codes or [] for m in sampled]))
+    motion.warnings = _warnings(plan, sampled, motion)
+    state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
+    edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
+    handle_out = make_handle(limits, request, motion.codes) if body.format == "json" else None
+    rendered = await run_in_threadpool(render, motion, body.format, limits, handle_out, {"edited": edited})
+    headers = {"X-Seed": str(handle.seed)}
+    if motion.warnings:
+        headers["X-T2M-Warnings"] = " | ".join(motion.warnings).encode("ascii", "replace").decode()
+    if body.format != "json":
+        headers["Content-Disposition"] = f'attachment; filename="{rendered.filename}"'
+    return Response(content=rendered.body, media_type=rendered.media_type, headers=headers)
+
+
+async def _sample(plan: EditPlan, model: ServedModel, state: ServiceState) -> list[Motion]:
+    """The plan's parts through the model's batcher together (each its own request and seed); one failing cancels
+    the others and answers as a failed generation would, its field the edit's."""
+    timeout = state.settings.request_timeout_s
+    tasks = [asyncio.ensure_future(model.batcher.generate(part.request, timeout)) for part in plan.parts]
+    try:
+        return list(await asyncio.gather(*tasks))
+    except BaseException as error:
+        for sampled, task in zip(plan.parts, tasks):
+            sampled.request.cancel()
+            task.cancel()
+        if isinstance(error, RequestLimitError):
+            failed = next(i for i, task in enumerate(tasks) if task.done() and not task.cancelled()
+                          and task.exception() is error)
+            raise RequestValidationError([{"type": "value_error", "loc": plan.field_of(failed, str(error)),
+                                           "msg": str(error), "input": None}]) from None
+        if isinstance(error, Exception):
+            raise http_error(error, state.settings) from None
+        raise
+
+
+def _warnings(plan: EditPlan, sampled: list[Motion], motion: Motion) -> list[str]:
+    """The sampled parts' warnings, their segment numbers the edited motion's, then the decode's; once each."""
+    where = [[i for i, s in enumerate(plan.segments) if s.part == p] for p in range(len(plan.parts))]
+    out: list[str] = []
+    for part, sub in enumerate(sampled):
+        indices = where[part]
+
+        def renumber(match: re.Match[str], indices: list[int] = indices) -> str:
+            return f"segments.{indices[int(match[1])]}."
+
+        out += [re.sub(r"^segments\.(\d+)\.", renumber, warning) for warning in sub.warnings]
+    out += motion.warnings
+    return list(dict.fromkeys(out))
