@@ -6,7 +6,8 @@ resulting segments in order plus the sampling requests: one request per regenera
 with its own seed: given, or derived from the handle's seed and its index) and one per continue op (its segments
 together, with its seed), each with the handle's options (guidance, temperature, top_k). The route runs the
 requests through the model's batcher as any generation, then decodes all the codes once (OnnxEngine.compose).
-A failure is an EditError with the `loc` of the field (pydantic's shape: a 422).
+A failure is an EditError with the `loc` of the field (pydantic's shape: a 422). `edit_in_process` does the same
+with an engine directly (`t2m edit`, benchmarks/edit_latency.py).
 """
 from __future__ import annotations
 
@@ -17,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
-from t2m.service.handles import MotionHandle, segment_seed
+from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion, SegmentRequest, tokens_for_duration
+from t2m.service.handles import MotionHandle, make_handle, read_handle, segment_seed
 from t2m.service.schemas import MAX_SEGMENTS, MAX_TOTAL_S, ContinueEdit, RegenerateEdit
 
-__all__ = ["EditError", "EditPlan", "PlannedSegment", "SampledPart", "plan_edit"]
+__all__ = ["EditError", "EditPlan", "EditResult", "PlannedSegment", "SampledPart", "edit_in_process", "plan_edit"]
 
 
 class EditError(ValueError):
@@ -72,6 +73,18 @@ class EditPlan:
     def edited(self) -> list[tuple[int, int]]:
         """(index in the edited motion, seed) of every sampled segment."""
         return [(i, self.parts[s.part].request.seed) for i, s in enumerate(self.segments) if s.part is not None]
+
+    def warnings(self, sampled: Sequence[Motion], motion: Motion) -> list[str]:
+        """The sampled parts' warnings, their segment numbers the edited motion's, then the decode's; once each."""
+        out: list[str] = []
+        for part, sub in enumerate(sampled):
+            indices = [i for i, s in enumerate(self.segments) if s.part == part]
+
+            def renumber(match: re.Match[str], indices: list[int] = indices) -> str:
+                return f"segments.{indices[int(match[1])]}."
+
+            out += [re.sub(r"^segments\.(\d+)\.", renumber, warning) for warning in sub.warnings]
+        return list(dict.fromkeys([*out, *motion.warnings]))
 
     def field_of(self, part: int, message: str) -> tuple[Any, ...]:
         """The body field a sampled part's error names ("segments.0.text: ..." of its request -> the edit's)."""
@@ -152,3 +165,24 @@ def plan_edit(handle: MotionHandle, edits: Sequence[RegenerateEdit | ContinueEdi
         raise EditError(("body", "edits"), f"the edited motion would last {total:g} s, more than {MAX_TOTAL_S:g} s "
                                            "(a null duration to sample counts as the model's longest segment)")
     return plan
+
+
+@dataclass
+class EditResult:
+    motion: Motion
+    handle: str | None
+    edited: list[tuple[int, int]]
+
+
+def edit_in_process(engine: Any, handle: str, edits: Sequence[RegenerateEdit | ContinueEdit]) -> EditResult:
+    """An edit with an OnnxEngine directly, as POST /edit makes it (parts sampled one after the other instead of
+    through the queue: the same codes, each request drawing from its own generator). HandleError / EditError /
+    RequestLimitError as the route's 422s."""
+    limits = engine.limits
+    kept = read_handle(handle, limits)
+    plan = plan_edit(kept, edits, limits)
+    sampled = [engine.generate(part.request) for part in plan.parts]
+    request = plan.request(kept)
+    motion = engine.compose(request, plan.codes([m.codes or [] for m in sampled]))
+    motion.warnings = plan.warnings(sampled, motion)
+    return EditResult(motion, make_handle(limits, request, motion.codes), plan.edited())

@@ -407,3 +407,59 @@ def test_openapi_documents_edit_with_examples(app_client):
     assert schema["components"]["schemas"]["EditRequest"]["examples"]
     assert "handle" in schema["components"]["schemas"]["MotionResponse"]["properties"]
     assert schema["paths"]["/generate"]["post"]["responses"]["200"]
+
+
+def test_the_sdk_edits_a_motion_it_generated(live_server):
+    import asyncio
+
+    from t2m.client import Append, AsyncT2MClient, Regenerate, T2MClient, ValidationError
+
+    with T2MClient(live_server.url, api_key="test-key") as t2m:
+        motion = t2m.generate(THREE, seed=5)
+        assert motion.handle and motion.handle.startswith("t2m1.")
+        same = t2m.edit(motion)
+        assert np.array_equal(same.frames, motion.frames) and same.edited == []
+        edited = t2m.edit(motion, [Regenerate(1, text="a person raises the left hand", seed=3),
+                                   Append([("a person sits down", 2.0)], seed=4)])
+        assert edited.edited == [(1, 3), (3, 4)] and len(edited.segments) == 4
+        assert np.array_equal(edited.frames[:40], motion.frames[:40])
+        assert t2m.edit(edited.handle, [{"segment": 3, "seed": 4}]).handle == edited.handle   # the same sample
+        bvh = t2m.edit_raw(motion, [Regenerate(2, seed=1)], "bvh")
+        assert bvh.content.startswith(b"HIERARCHY") and bvh.seed == 5
+        with pytest.raises(ValidationError) as caught:
+            t2m.edit(motion.handle[:-8], [])
+        assert caught.value.fields == ["handle"]
+
+    async def scenario() -> None:
+        async with AsyncT2MClient(live_server.url, api_key="test-key") as t2m:
+            again = await t2m.edit(motion.handle, [Regenerate(1, text="a person raises the left hand", seed=3),
+                                                   Append([("a person sits down", 2.0)], seed=4)])
+            assert np.array_equal(again.frames, edited.frames)
+
+    asyncio.run(scenario())
+
+
+def test_t2m_edit_changes_a_saved_json_motion(random_bundle, tmp_path, capsys):
+    import json
+
+    from t2m.cli.main import main
+
+    saved = tmp_path / "walk.json"
+    assert main(["generate", "a person walks forward", "--duration", "3", "--then", "a person waves", "--duration",
+                 "2", "--then", "a person bows", "--duration", "3", "--seed", "5", "--model", str(random_bundle),
+                 "-o", str(saved)]) == 0
+    original = json.loads(saved.read_text())
+    edited_path = tmp_path / "edited.json"
+    assert main(["edit", str(saved), "--segment", "1", "--text", "a person raises the left hand",
+                 "--model", str(random_bundle), "-o", str(edited_path)]) == 0
+    edited = json.loads(edited_path.read_text())
+    assert edited["edited"] == [{"segment": 1, "seed": segment_seed(5, 1)}]
+    assert edited["frames"][:40] == original["frames"][:40] and edited["frames"] != original["frames"]
+    bvh = tmp_path / "longer.bvh"
+    assert main(["edit", str(edited_path), "--edits", '[{"op": "append", "segments": [{"text": "a person sits", '
+                 '"duration": 2}]}]', "--model", str(random_bundle), "-o", str(bvh)]) == 0
+    assert bvh.read_text().startswith("HIERARCHY")
+    capsys.readouterr()
+    saved.write_text(json.dumps({**original, "handle": original["handle"][:-5]}))
+    assert main(["edit", str(saved), "--model", str(random_bundle), "-o", str(tmp_path / "x.json")]) == 2
+    assert "handle" in capsys.readouterr().err

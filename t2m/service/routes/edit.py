@@ -4,7 +4,6 @@ handle's, bit for bit (docs/api.md states the rule). Stateless: the handle carri
 from __future__ import annotations
 
 import asyncio
-import re
 from typing import Any
 
 from fastapi import APIRouter, Depends, Response
@@ -83,7 +82,7 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
         raise _handle_error(HandleError("handle", f"model {limits.name!r} cannot decode codes it is given"))
     request = plan.request(handle)
     motion: Motion = await run_in_threadpool(compose, request, plan.codes([m.codes or [] for m in sampled]))
-    motion.warnings = _warnings(plan, sampled, motion)
+    motion.warnings = plan.warnings(sampled, motion)
     state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
     edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
     handle_out = make_handle(limits, request, motion.codes) if body.format == "json" else None
@@ -115,18 +114,3 @@ async def _sample(plan: EditPlan, model: ServedModel, state: ServiceState) -> li
         if isinstance(error, Exception):
             raise http_error(error, state.settings) from None
         raise
-
-
-def _warnings(plan: EditPlan, sampled: list[Motion], motion: Motion) -> list[str]:
-    """The sampled parts' warnings, their segment numbers the edited motion's, then the decode's; once each."""
-    where = [[i for i, s in enumerate(plan.segments) if s.part == p] for p in range(len(plan.parts))]
-    out: list[str] = []
-    for part, sub in enumerate(sampled):
-        indices = where[part]
-
-        def renumber(match: re.Match[str], indices: list[int] = indices) -> str:
-            return f"segments.{indices[int(match[1])]}."
-
-        out += [re.sub(r"^segments\.(\d+)\.", renumber, warning) for warning in sub.warnings]
-    out += motion.warnings
-    return list(dict.fromkeys(out))
