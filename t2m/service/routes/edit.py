@@ -13,10 +13,9 @@ from starlette.concurrency import run_in_threadpool
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.editing import EditError, EditPlan, plan_edit
 from t2m.service.engine.types import Motion, RequestLimitError
-from t2m.service.formats import render
-from t2m.service.handles import HandleError, make_handle, read_handle
+from t2m.service.handles import HandleError, read_handle
 from t2m.service.registry import ServedModel
-from t2m.service.routes.generate import _RESPONSES, http_error
+from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
 from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
 
 __all__ = ["router"]
@@ -85,15 +84,7 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     motion.warnings = plan.warnings(sampled, motion)
     state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
     edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
-    handle_out = make_handle(limits, request, motion.codes) if body.format == "json" else None
-    rendered = await run_in_threadpool(render, motion, body.format, limits, handle_out, {"edited": edited})
-    headers = {"X-Seed": str(handle.seed)}
-    if motion.warnings:
-        headers["X-T2M-Warnings"] = " | ".join(motion.warnings).encode("ascii", "replace").decode()
-    if body.format != "json":
-        headers["Content-Disposition"] = f'attachment; filename="{rendered.filename}"'
-    return Response(content=rendered.body, media_type=rendered.media_type, headers=headers)
-
+    return await motion_answer(motion, body.format, limits, request, {"edited": edited})
 
 async def _sample(plan: EditPlan, model: ServedModel, state: ServiceState) -> list[Motion]:
     """The plan's parts through the model's batcher together (each its own request and seed); one failing cancels

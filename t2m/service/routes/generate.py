@@ -14,7 +14,7 @@ from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
-from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, RequestLimitError
+from t2m.service.engine.types import GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError
 from t2m.service.formats import (
     STREAM_MEDIA_TYPE,
     ndjson,
@@ -38,7 +38,7 @@ from t2m.service.schemas import (
 from t2m.service.settings import Settings
 from t2m.service.streaming import MotionStream
 
-__all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "http_error", "router"]
+__all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "http_error", "motion_answer", "router"]
 
 RANDOM_SEED_BITS = 31   # seeds we pick fit any client's integers (JavaScript included)
 STREAM_CHUNK_FRAMES = 40   # frames per message of what is sent with the whole motion (2 s at 20 fps)
@@ -93,13 +93,20 @@ async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_st
         raise http_error(error, settings) from None
     state.metrics.count_generation(model.name, motion.tokens, len(motion.segments))
 
-    handle = make_handle(limits, request, motion.codes) if body.format == "json" else None
-    rendered = await run_in_threadpool(render, motion, body.format, limits, handle)
-    headers = {"X-Seed": str(motion.seed)}
+    return await motion_answer(motion, body.format, limits, request)
+
+
+async def motion_answer(motion: Motion, fmt: str, limits: ModelLimits, request: GenerationRequest,
+                        extra: dict[str, Any] | None = None) -> Response:
+    """The answer of a motion made for `request` (its json with the handle and `extra`'s fields, or the file), with
+    its headers: X-Seed (the request's), X-T2M-Warnings, a file's Content-Disposition."""
+    handle = make_handle(limits, request, motion.codes) if fmt == "json" else None
+    rendered = await run_in_threadpool(render, motion, fmt, limits, handle, extra)
+    headers = {"X-Seed": str(request.seed)}
     if motion.warnings:
         # headers are latin-1: anything else (e.g. a model name) becomes '?'
         headers["X-T2M-Warnings"] = " | ".join(motion.warnings).encode("ascii", "replace").decode()
-    if body.format != "json":
+    if fmt != "json":
         headers["Content-Disposition"] = f'attachment; filename="{rendered.filename}"'
     return Response(content=rendered.body, media_type=rendered.media_type, headers=headers)
 
