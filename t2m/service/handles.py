@@ -46,8 +46,8 @@ from t2m.service.schemas import (
     MIN_DURATION_S,
 )
 
-__all__ = ["HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "HandleSegment", "MotionHandle", "make_handle",
-           "read_handle", "segment_seed"]
+__all__ = ["HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "HandleSegment", "MotionHandle", "handle_model",
+           "make_handle", "read_handle", "segment_seed"]
 
 HANDLE_PREFIX = "t2m1."
 MAX_HANDLE_CHARS = 2_000_000      # the string; the decompressed body is bounded per model (`_max_body`)
@@ -132,8 +132,8 @@ def _max_body(limits: ModelLimits) -> int:
     return 4 + MAX_META_BYTES + MAX_SEGMENTS * limits.max_tokens * limits.codes.values * _width(limits)
 
 
-def _unpack(handle: str, limits: ModelLimits) -> bytes:
-    """The checked body of a handle string."""
+def _packed(handle: str) -> tuple[bytes, bytes]:
+    """(checksum, compressed body) of a handle string."""
     if not isinstance(handle, str) or not handle.startswith(HANDLE_PREFIX):
         raise HandleError("handle", f"not a t2m handle (it starts with {HANDLE_PREFIX!r}, the format version)")
     if len(handle) > MAX_HANDLE_CHARS:
@@ -145,7 +145,12 @@ def _unpack(handle: str, limits: ModelLimits) -> bytes:
         raise HandleError("handle", "not base64url") from None
     if len(packed) <= CHECKSUM_BYTES:
         raise HandleError("handle", "truncated")
-    checksum, compressed = packed[:CHECKSUM_BYTES], packed[CHECKSUM_BYTES:]
+    return packed[:CHECKSUM_BYTES], packed[CHECKSUM_BYTES:]
+
+
+def _unpack(handle: str, limits: ModelLimits) -> bytes:
+    """The checked body of a handle string."""
+    checksum, compressed = _packed(handle)
     inflater = zlib.decompressobj()
     limit = _max_body(limits)
     try:
@@ -162,7 +167,23 @@ def _unpack(handle: str, limits: ModelLimits) -> bytes:
     return body
 
 
+def handle_model(handle: str) -> tuple[str, str]:
+    """The (name, version) of the model a handle names, read from its description alone (nothing else checked
+    yet: `read_handle` does that with the model's limits)."""
+    _, compressed = _packed(handle)
+    try:
+        start = zlib.decompressobj().decompress(compressed, 4 + MAX_META_BYTES)
+    except zlib.error:
+        raise HandleError("handle", "corrupt (its compressed data does not decompress)") from None
+    meta, _ = _meta(start)
+    name, version = meta["model"], meta["version"]
+    if not isinstance(name, str) or not isinstance(version, str):
+        raise HandleError("handle.model", "must name a model and its version")
+    return name, version
+
+
 def _meta(body: bytes) -> tuple[dict[str, Any], bytes]:
+    """The description and the code bytes after it (all of them only in a whole body)."""
     if len(body) < 4:
         raise HandleError("handle", "truncated")
     (size,) = struct.unpack_from("<I", body)

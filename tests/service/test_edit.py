@@ -362,6 +362,9 @@ def test_a_tampered_handle_over_http_is_422_naming_the_handle(app_client, made):
     other = repack(handle, set_meta(b'"version":"', b'"version":"9'))
     detail = edit(app_client, other, [], status=422)["detail"]
     assert detail[0]["loc"] == ["body", "handle"] and "handle.model" in detail[0]["msg"]
+    unserved = repack(handle, set_meta(b'"model":"t2m-random-test"', b'"model":"elsewhere"'))
+    detail = edit(app_client, unserved, [], status=422)["detail"]
+    assert detail[0]["loc"] == ["body", "handle"] and "does not serve" in detail[0]["msg"]
     detail = edit(app_client, handle, [], status=422, model="no-such-model")["detail"]
     assert detail[0]["loc"] == ["body", "model"]
 

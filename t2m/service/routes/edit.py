@@ -1,6 +1,7 @@
 """POST /edit: a motion the service made (its answer's `handle`) with some segments sampled again or added, the other
-segments' codes kept, all decoded once: the motion outside the edited segments and the decoder's reach of them is the
-handle's, bit for bit (docs/api.md states the rule). Stateless: the handle carries everything (service/handles.py)."""
+segments' codes kept, all decoded once: the frames before the edit and outside the decoder's reach of it are the
+handle's bit for bit, the frames after it the same motion rigidly moved (docs/api.md states the exact rule).
+Stateless: the handle carries everything (service/handles.py)."""
 from __future__ import annotations
 
 import asyncio
@@ -13,7 +14,7 @@ from starlette.concurrency import run_in_threadpool
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.editing import EditError, EditPlan, plan_edit
 from t2m.service.engine.types import Motion, RequestLimitError
-from t2m.service.handles import HandleError, read_handle
+from t2m.service.handles import HandleError, handle_model, read_handle
 from t2m.service.registry import ServedModel
 from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
 from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
@@ -38,24 +39,23 @@ def _handle_error(error: HandleError) -> RequestValidationError:
 
 
 def _model_of(body: EditRequest, state: ServiceState) -> ServedModel:
-    """The model the body names, else the one the handle names (read before it is checked: the model checks it)."""
+    """The model the body names, else the served model of the name the handle names (its version and everything
+    else are checked by read_handle against that model)."""
     assert state.models is not None
     if body.model is not None:
         model = state.models.get(body.model)
         if model is None:
             raise RequestValidationError([unknown_model_error(body.model, state.models.names)])
         return model
-    for candidate in state.models:
-        try:
-            read_handle(body.handle, candidate.limits)
-        except HandleError as error:
-            if error.part != "handle.model":
-                raise _handle_error(error) from None
-            continue
-        return candidate
-    raise RequestValidationError([{"type": "value_error", "loc": ("body", "handle"), "input": None, "msg":
-                                   "handle.model: made by a model (name and version) this service does not serve "
-                                   f"({', '.join(repr(name) for name in state.models.names)})"}])
+    try:
+        name, version = handle_model(body.handle)
+    except HandleError as error:
+        raise _handle_error(error) from None
+    model = state.models.get(name)
+    if model is None:
+        raise _handle_error(HandleError("handle.model", f"made by model {name!r} version {version!r}, which this "
+                                        f"service does not serve ({', '.join(map(repr, state.models.names))})"))
+    return model
 
 
 @router.post("/edit", response_model=EditResponse, responses=_EDIT_RESPONSES, dependencies=[Depends(require_api_key)],
@@ -63,9 +63,10 @@ def _model_of(body: EditRequest, state: ServiceState) -> ServedModel:
 async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) -> Response:
     """`handle` is a json answer's handle (of /generate or /edit). Each regenerate edit samples its segment again (a
     new text, seed or duration); append and prepend edits add segments; every other segment keeps its codes, and
-    the codes are decoded once, so frames away from the edited segments are the handle's motion's exactly. No edits
-    answers the handle's motion again. The model must be the one (name and version) that made the handle; a family
-    answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`)."""
+    the codes are decoded once: frames before the edit and outside the decoder's reach are the handle's bit for bit,
+    frames after it the same motion rigidly moved (the root's path is a running sum; docs/api.md gives the rule). No
+    edits answers the handle's motion again, bit for bit. The model must be the one (name and version) that made the
+    handle; a family answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`)."""
     model = _model_of(body, state)
     limits = model.limits
     try:
