@@ -68,7 +68,8 @@ def measure(model: Path, repeats: int, threads: int) -> None:
     same = np.all(edited.joints == motion.joints, axis=(1, 2))
     kept_frames = int(np.argmin(same)) if not same.all() else len(same)
     read_ms = _times(lambda: read_handle(handle, engine.limits), repeats)
-    print(f"{engine.limits.name} {engine.limits.version} ({model}): {len(motion.joints)} frames, "
+    shown = model.resolve().relative_to(REPO) if model.resolve().is_relative_to(REPO) else model.name
+    print(f"{engine.limits.name} {engine.limits.version} ({shown}): {len(motion.joints)} frames, "
           f"{sum(len(c) for c in motion.codes or [])} code steps, handle {len(handle)} characters "
           f"(read + checked in {np.median(read_ms):.2f} ms)")
     for name, values in (("generate all 3 again", whole_ms), ("edit segment 1 only", edit_ms)):

@@ -14,6 +14,7 @@ from starlette.concurrency import run_in_threadpool
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.editing import EditError, EditPlan, plan_edit
 from t2m.service.engine.types import Motion, RequestLimitError
+from t2m.service.formats import STREAM_MEDIA_TYPE
 from t2m.service.handles import HandleError, handle_model, read_handle
 from t2m.service.registry import ServedModel
 from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
@@ -25,11 +26,10 @@ router = APIRouter(tags=["generation"])
 
 _EDIT_RESPONSES: dict[int | str, dict[str, Any]] = {
     **_RESPONSES,
-    200: {**_RESPONSES[200], "description": "The edited motion. json: EditResponse (with a new handle); bvh: BVH "
-                                            "text; glb: glTF binary. Header X-Seed: the handle's seed."},
-    422: {"description": "A field is wrong (FastAPI's shape: detail = [{loc, msg, type, input}]): e.g. a handle "
-                         "that is corrupted, altered, out of the model's ranges or from another model (loc body, "
-                         "handle), a segment index it lacks, an edit kind the model's family does not support."},
+    200: {"description": "The edited motion. json: EditResponse (with a new handle); bvh: BVH text; glb: glTF binary. "
+                         "Headers: X-Seed (the handle's seed), X-T2M-Warnings (if any).",
+          "content": {media: schema for media, schema in _RESPONSES[200]["content"].items()
+                      if media != STREAM_MEDIA_TYPE}},
 }
 
 
@@ -66,7 +66,10 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     the codes are decoded once: frames before the edit and outside the decoder's reach are the handle's bit for bit,
     frames after it the same motion rigidly moved (the root's path is a running sum; docs/api.md gives the rule). No
     edits answers the handle's motion again, bit for bit. The model must be the one (name and version) that made the
-    handle; a family answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`)."""
+    handle; a family answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`). A 422
+    names the field: `handle` for a handle that is corrupted, altered, out of the model's ranges or another model's
+    (the message names the part: `handle.checksum`, `handle.segments.0.codes`, `handle.model`), `edits.<i>...` for
+    an edit the handle or the model does not allow."""
     model = _model_of(body, state)
     limits = model.limits
     try:
