@@ -21,7 +21,7 @@ def test_every_command_registers_with_its_own_name() -> None:
         assert help_text.startswith(f"usage: t2m {name}"), help_text[:80]
 
 
-@pytest.mark.parametrize("command", ["serve", "generate", "motion"])
+@pytest.mark.parametrize("command", ["serve", "generate", "edit", "motion"])
 def test_runtime_commands_do_not_import_torch(command: str) -> None:
     code = (
         "import sys\n"

@@ -26,7 +26,9 @@ from t2m.bundle.errors import BundleError
 
 __all__ = [
     "BUILTIN_FAMILY_PACKAGE",
+    "EDIT_KINDS",
     "ENTRY_POINT_GROUP",
+    "SEGMENT_EDITS",
     "Capabilities",
     "FieldRule",
     "ModelFamily",
@@ -44,6 +46,12 @@ FieldRule = tuple[Callable[[Any], bool], str]
 BUILTIN_FAMILY_PACKAGE = "t2m.families"
 ENTRY_POINT_GROUP = "t2m.families"
 
+# edit kinds a family may declare (Capabilities.edits): POST /edit serves the first three (the segment edits) for a
+# family that declares them; in_between and body_part are declared by families whose loops can, for a later step
+EDIT_KINDS = ("regenerate", "append", "prepend", "in_between", "body_part")
+# what a family of independent per-segment token sequences does by sampling only the edited segments (GPT, HiFiGPT)
+SEGMENT_EDITS = frozenset({"regenerate", "append", "prepend"})
+
 
 @dataclass(frozen=True)
 class Capabilities:
@@ -52,8 +60,9 @@ class Capabilities:
     `continuous_batching`: requests join running work at a step boundary (the served object has `cohort`);
     `early_frames`: frames stream while codes are still sampled (the job has a `progress` hook and the decoder's
     reach is probed); `code_depth`: the decoder reads [steps, R] code rows (T2M-HiFiGPT) instead of [steps] or
-    [steps, C, R] maps, for the reach probe; `edits`: the edit kinds it supports (none yet); `devices`: where its
-    graphs may run."""
+    [steps, C, R] maps, for the reach probe; `edits`: the edit kinds it supports (of EDIT_KINDS: "regenerate" a
+    segment with a new text, seed or duration, "append" / "prepend" segments, "in_between", "body_part"); POST /edit
+    answers 422 for a kind the model's family does not declare; `devices`: where its graphs may run."""
 
     continuous_batching: bool = False
     early_frames: bool = False

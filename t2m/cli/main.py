@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("t2m.cli.commands.bench", "benchmark generation speed"),
     "serve": ("t2m.cli.commands.serve", "run the HTTP service"),
     "generate": ("t2m.cli.commands.generate", "generate a motion file without a server"),
+    "edit": ("t2m.cli.commands.edit", "edit a saved json motion (its handle) without a server"),
 }
 
 

@@ -1,9 +1,21 @@
 """The t2m Python SDK: `T2MClient` / `AsyncT2MClient` over httpx. Imports nothing of the service."""
 from t2m.client.client import AsyncT2MClient, T2MClient
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
-from t2m.client.models import FrameChunk, Health, ModelInfo, Motion, RawResult, Segment, SegmentSpan
+from t2m.client.models import (
+    Append,
+    FrameChunk,
+    Health,
+    ModelInfo,
+    Motion,
+    Prepend,
+    RawResult,
+    Regenerate,
+    Segment,
+    SegmentSpan,
+)
 
 __all__ = [
+           "Append",
            "AsyncT2MClient",
            "AuthError",
            "FrameChunk",
@@ -11,7 +23,9 @@ __all__ = [
            "ModelInfo",
            "Motion",
            "OverloadedError",
+           "Prepend",
            "RawResult",
+           "Regenerate",
            "Segment",
            "SegmentSpan",
            "ServerError",

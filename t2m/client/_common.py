@@ -3,17 +3,26 @@ from __future__ import annotations
 
 import contextlib
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import httpx
 import numpy as np
 
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
-from t2m.client.models import FrameChunk, Motion, RawResult, SegmentsLike, to_segments, warnings_of
+from t2m.client.models import (
+    EditLike,
+    FrameChunk,
+    Motion,
+    RawResult,
+    SegmentsLike,
+    edits_json,
+    to_segments,
+    warnings_of,
+)
 
-__all__ = ["DEFAULT_TIMEOUT_S", "DEFAULT_URL", "StreamReader", "auth_headers", "connection_errors", "raise_for_answer",
-           "raw_result", "request_body", "stream_body"]
+__all__ = ["DEFAULT_TIMEOUT_S", "DEFAULT_URL", "StreamReader", "auth_headers", "connection_errors", "edit_body",
+           "raise_for_answer", "raw_result", "request_body", "stream_body"]
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 DEFAULT_TIMEOUT_S = 120.0
@@ -29,6 +38,17 @@ def request_body(segments: SegmentsLike, fmt: str, seed: int | None, guidance: f
         body["model"] = model
     if stream:
         body["stream"] = True
+    return body
+
+
+def edit_body(motion: Motion | str, edits: Sequence[EditLike], fmt: str, model: str | None) -> dict[str, Any]:
+    """The POST /edit body for a Motion (its handle) or a handle string."""
+    handle = motion if isinstance(motion, str) else motion.handle
+    if not handle:
+        raise T2MError("this motion has no handle to edit (a json answer of a server with POST /edit carries one)")
+    body: dict[str, Any] = {"handle": handle, "edits": edits_json(edits), "format": fmt}
+    if model is not None:
+        body["model"] = model
     return body
 
 

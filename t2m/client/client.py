@@ -9,10 +9,11 @@
                 play(item.frames)    # [n, 22, 3], frames item.start_frame.. of the motion
             else:
                 motion = item        # the whole Motion, last
+        bow = t2m.edit(motion, [Regenerate(2, text="a person bows deeply")])   # the other segments kept
 """
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +25,13 @@ from t2m.client._common import (
     StreamReader,
     auth_headers,
     connection_errors,
+    edit_body,
     raise_for_answer,
     raw_result,
     request_body,
     stream_body,
 )
-from t2m.client.models import FrameChunk, Health, Motion, RawResult, SegmentsLike
+from t2m.client.models import EditLike, FrameChunk, Health, Motion, RawResult, SegmentsLike
 
 __all__ = ["AsyncT2MClient", "T2MClient"]
 
@@ -72,6 +74,16 @@ class T2MClient:
         (`health().model_names`), None = the server's default."""
         body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json(self._send("POST", "/generate", json=body).json())
+
+    def edit(self, motion: Motion | str, edits: Sequence[EditLike] = (), *, model: str | None = None) -> Motion:
+        """A motion (or its handle) with some segments changed (Regenerate(i, text=..., seed=...), Append([...]),
+        Prepend([...])) and the others kept; no edits gives the motion back. The answer has a handle of its own."""
+        return Motion.from_json(self._send("POST", "/edit", json=edit_body(motion, edits, "json", model)).json())
+
+    def edit_raw(self, motion: Motion | str, edits: Sequence[EditLike], fmt: str, *,
+                 model: str | None = None) -> RawResult:
+        """The edited motion as a 'bvh' | 'glb' | 'json' file."""
+        return raw_result(self._send("POST", "/edit", json=edit_body(motion, edits, fmt, model)))
 
     def generate_stream(self, segments: SegmentsLike, *, seed: int | None = None, guidance: float | None = None,
                         temperature: float = 1.0, top_k: int | None = None,
@@ -149,6 +161,15 @@ class AsyncT2MClient:
                        temperature: float = 1.0, top_k: int | None = None, model: str | None = None) -> Motion:
         body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json((await self._send("POST", "/generate", json=body)).json())
+
+    async def edit(self, motion: Motion | str, edits: Sequence[EditLike] = (), *,
+                   model: str | None = None) -> Motion:
+        body = edit_body(motion, edits, "json", model)
+        return Motion.from_json((await self._send("POST", "/edit", json=body)).json())
+
+    async def edit_raw(self, motion: Motion | str, edits: Sequence[EditLike], fmt: str, *,
+                       model: str | None = None) -> RawResult:
+        return raw_result(await self._send("POST", "/edit", json=edit_body(motion, edits, fmt, model)))
 
     async def generate_stream(self, segments: SegmentsLike, *, seed: int | None = None,
                               guidance: float | None = None, temperature: float = 1.0, top_k: int | None = None,

@@ -8,14 +8,19 @@ from typing import Any, TypeAlias
 import numpy as np
 
 __all__ = [
+    "Append",
+    "EditLike",
     "FrameChunk",
     "Health",
     "ModelInfo",
     "Motion",
+    "Prepend",
     "RawResult",
+    "Regenerate",
     "Segment",
     "SegmentSpan",
     "SegmentsLike",
+    "edits_json",
     "to_segments",
     "warnings_of",
 ]
@@ -80,6 +85,8 @@ class Motion:
     seed: int
     model: ModelInfo
     warnings: list[str] = field(default_factory=list)
+    handle: str | None = None      # what `client.edit` takes back (None from a server before 0.x or a diffusion model)
+    edited: list[tuple[int, int]] = field(default_factory=list)   # an edit's answer: (segment, seed) sampled
 
     @property
     def num_frames(self) -> int:
@@ -98,7 +105,53 @@ class Motion:
         return cls(frames=frames, fps=int(data["fps"]), joints=list(data["joints"]), parents=list(data["parents"]),
                    segments=[SegmentSpan(s["text"], int(s["start_frame"]), int(s["end_frame"]))
                              for s in data["segments"]],
-                   seed=int(data["seed"]), model=ModelInfo(**data["model"]), warnings=list(data.get("warnings", [])))
+                   seed=int(data["seed"]), model=ModelInfo(**data["model"]), warnings=list(data.get("warnings", [])),
+                   handle=data.get("handle"),
+                   edited=[(int(e["segment"]), int(e["seed"])) for e in data.get("edited", [])])
+
+
+@dataclass(frozen=True)
+class Regenerate:
+    """Sample segment `segment` of a motion again: a new text, seed and/or duration (None keeps its own; a seed of
+    None is derived from the motion's seed and the index, the same every time)."""
+
+    segment: int
+    text: str | None = None
+    seed: int | None = None
+    duration: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        body: dict[str, Any] = {"segment": self.segment}
+        body.update({key: value for key, value in (("text", self.text), ("seed", self.seed),
+                                                   ("duration", self.duration)) if value is not None})
+        return body
+
+
+@dataclass(frozen=True)
+class Append:
+    """Add segments after the motion (sampled as one request with `seed`; None: derived from the motion's)."""
+
+    segments: SegmentsLike
+    seed: int | None = None
+    op: str = "append"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"op": self.op, "segments": [s.to_json() for s in to_segments(self.segments)], "seed": self.seed}
+
+
+@dataclass(frozen=True)
+class Prepend(Append):
+    """Add segments before the motion."""
+
+    op: str = "prepend"
+
+
+EditLike: TypeAlias = Regenerate | Append | Mapping[str, Any]
+
+
+def edits_json(edits: Sequence[EditLike]) -> list[dict[str, Any]]:
+    """The `edits` of a POST /edit body: Regenerate / Append / Prepend objects or the API's own dicts."""
+    return [dict(edit) if isinstance(edit, Mapping) else edit.to_json() for edit in edits]
 
 
 @dataclass(frozen=True)

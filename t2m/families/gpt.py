@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from t2m.bundle.errors import BundleError
-from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
+from t2m.bundle.family import SEGMENT_EDITS, Capabilities, FieldRule, ModelFamily
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, features_output, kv_shape
 from t2m.bundle.manifest import (
     BOOL,
@@ -58,7 +58,7 @@ class GptFamily(ModelFamily):
     name = "gpt"
     title = "T2M-GPT: one code per step from a KV-cached GPT, End token, 1D VQ decoder"
     fields = GPT_FIELDS
-    capabilities = Capabilities(continuous_batching=True, early_frames=True)
+    capabilities = Capabilities(continuous_batching=True, early_frames=True, edits=SEGMENT_EDITS)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {
         "gpt": ("t2m.model.training.train_gpt", "train the text-to-code GPT on a trained VQ's codes")}
     eval_run_option = "gpt"

@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
-from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
+from t2m.bundle.family import SEGMENT_EDITS, Capabilities, FieldRule, ModelFamily
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, features_output, kv_shape
 from t2m.bundle.manifest import (
     BOOL,
@@ -61,7 +61,8 @@ class HiFiGPTFamily(ModelFamily):
     title = "T2M-HiFiGPT: a temporal GPT step and R residual-depth steps per 8 frames, RVQ-VAE decoder"
     fields = HIFIGPT_FIELDS
     optional_fields = OPTIONAL_FIELDS
-    capabilities = Capabilities(continuous_batching=True, early_frames=True, code_depth=True)
+    capabilities = Capabilities(continuous_batching=True, early_frames=True, code_depth=True,
+                                edits=SEGMENT_EDITS)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {"hifigpt": ("t2m.model.training.train_hifigpt",
                                   "train T2M-HiFiGPT's double-tier GPT on a residual VQ's codes")}
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {

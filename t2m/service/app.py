@@ -30,7 +30,7 @@ from t2m.service.formats import preload as preload_formats
 from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
 from t2m.service.middleware import BodySizeLimitMiddleware
 from t2m.service.registry import ModelRegistry, ServedModel, load_engines
-from t2m.service.routes import generate, health, metrics
+from t2m.service.routes import edit, generate, health, metrics
 from t2m.service.safe_json import json_safe
 from t2m.service.scheduling import QueuedWorkers, batcher_for
 from t2m.service.settings import Settings
@@ -102,6 +102,7 @@ def create_app(settings: Settings | None = None, *,
                               "motion (22-joint SMPL skeleton, 20 fps) as JSON joints, BVH or glTF binary.")
     app.state.service = state
     app.include_router(generate.router)
+    app.include_router(edit.router)
     app.include_router(health.router)
     app.include_router(metrics.router)
     _add_viewer(app)

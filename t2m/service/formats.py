@@ -47,16 +47,20 @@ def _model(limits: ModelLimits) -> dict[str, str]:
     return {"name": limits.name, "version": limits.version}
 
 
-def _about(motion: Motion, limits: ModelLimits) -> dict[str, Any]:
-    """What the frames are: the sentences' spans, the seed, the model, the warnings."""
+def _about(motion: Motion, limits: ModelLimits, handle: str | None, extra: dict[str, Any] | None) -> dict[str, Any]:
+    """What the frames are: the sentences' spans, the seed, the model, the warnings, the handle (service/handles.py:
+    what POST /edit takes back) and what an edit adds."""
     return {"segments": [{"text": s.text, "start_frame": s.start_frame, "end_frame": s.end_frame}
                          for s in motion.segments],
-            "seed": motion.seed, "model": _model(limits), "warnings": list(motion.warnings)}
+            "seed": motion.seed, "model": _model(limits), "warnings": list(motion.warnings), "handle": handle,
+            **(extra or {})}
 
 
-def motion_json(motion: Motion, limits: ModelLimits) -> dict[str, Any]:
-    """The json answer (schemas.MotionResponse), built directly as plain data for speed."""
-    return {**_playback(motion.fps, limits), "frames": frames_json(motion.joints), **_about(motion, limits)}
+def motion_json(motion: Motion, limits: ModelLimits, handle: str | None = None,
+                extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The json answer (schemas.MotionResponse, or EditResponse with `extra`), built directly as plain data."""
+    return {**_playback(motion.fps, limits), "frames": frames_json(motion.joints),
+            **_about(motion, limits, handle, extra)}
 
 
 def ndjson(message: dict[str, Any]) -> bytes:
@@ -74,9 +78,10 @@ def stream_frames(start_frame: int, joints: np.ndarray) -> dict[str, Any]:
     return {"type": "frames", "start_frame": start_frame, "frames": frames_json(joints)}
 
 
-def stream_end(motion: Motion, limits: ModelLimits) -> dict[str, Any]:
+def stream_end(motion: Motion, limits: ModelLimits, handle: str | None = None) -> dict[str, Any]:
     """The json answer without its frames (sent before it), and how many frames there were."""
-    return {"type": "end", **_playback(motion.fps, limits), **_about(motion, limits), "frame_count": len(motion.joints)}
+    return {"type": "end", **_playback(motion.fps, limits), **_about(motion, limits, handle, None),
+            "frame_count": len(motion.joints)}
 
 
 def stream_error(status: int, detail: str) -> dict[str, Any]:
@@ -104,10 +109,12 @@ def preload() -> None:
     import t2m.motion.gltf  # noqa: F401
 
 
-def render(motion: Motion, fmt: str, limits: ModelLimits) -> Rendered:
-    """The motion as bytes in format `fmt` ('json' | 'bvh' | 'glb') with its media type and file name."""
+def render(motion: Motion, fmt: str, limits: ModelLimits, handle: str | None = None,
+           extra: dict[str, Any] | None = None) -> Rendered:
+    """The motion as bytes in format `fmt` ('json' | 'bvh' | 'glb') with its media type and file name; the json
+    answer carries `handle` (and `extra`'s fields)."""
     if fmt == "json":
-        body = json.dumps(motion_json(motion, limits), separators=(",", ":")).encode()
+        body = json.dumps(motion_json(motion, limits, handle, extra), separators=(",", ":")).encode()
     elif fmt == "bvh":
         body = motion_bvh(motion, limits.skeleton).encode()
     elif fmt == "glb":

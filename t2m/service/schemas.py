@@ -10,7 +10,17 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StringConstraints, ValidationInfo, field_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    StringConstraints,
+    Tag,
+    ValidationInfo,
+    field_validator,
+)
 
 from t2m import __version__
 from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
@@ -25,6 +35,10 @@ __all__ = [
     "MAX_TEXT_CHARS",
     "MAX_TOTAL_S",
     "MIN_DURATION_S",
+    "ContinueEdit",
+    "EditRequest",
+    "EditResponse",
+    "EditedSegment",
     "ErrorResponse",
     "GenerateRequest",
     "HealthResponse",
@@ -32,6 +46,7 @@ __all__ = [
     "ModelInfo",
     "MotionResponse",
     "OutputFormat",
+    "RegenerateEdit",
     "RequestLimits",
     "Segment",
     "SegmentSpanOut",
@@ -133,6 +148,71 @@ class GenerateRequest(_Strict):
         return segments
 
 
+MAX_HANDLE_FIELD_CHARS = 2_000_000   # = handles.MAX_HANDLE_CHARS (handles imports this module)
+ModelName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_MODEL_NAME_CHARS)]
+Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS, pattern=r"\S")]
+
+
+class RegenerateEdit(_Strict):
+    """Sample one segment of the handle's motion again, with a new text, seed and/or duration."""
+
+    op: Literal["regenerate"] = Field("regenerate", description="This kind of edit (the default).")
+    segment: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(
+        description="Index of the segment in the handle (0 = the first).", examples=[1])
+    text: Text | None = Field(None, description="Its new text; null keeps the segment's own.",
+                              examples=["a person raises the left hand"])
+    seed: Seed | None = Field(None, description="Its seed; null derives one from the handle's seed and the segment's "
+                                                "index (the same on every call: send a seed to re-roll).")
+    duration: float | None = Field(None, ge=MIN_DURATION_S, le=MAX_DURATION_S,
+                                   description="Its new duration in seconds; null keeps the segment's own.")
+
+
+class ContinueEdit(_Strict):
+    """Add segments after (append) or before (prepend) the handle's motion; its own segments are kept."""
+
+    op: Literal["append", "prepend"]
+    segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
+    seed: Seed | None = Field(None, description="The new segments are sampled as one request with this seed (as "
+                                                "/generate samples its segments); null derives one from the handle's "
+                                                "seed and the op.")
+
+
+def _edit_kind(value: Any) -> str:
+    if isinstance(value, dict):
+        return "continue" if value.get("op") in ("append", "prepend") else "regenerate"
+    return "continue" if getattr(value, "op", None) in ("append", "prepend") else "regenerate"
+
+
+Edit = Annotated[Annotated[RegenerateEdit, Tag("regenerate")] | Annotated[ContinueEdit, Tag("continue")],
+                 Discriminator(_edit_kind)]
+
+
+class EditRequest(_Strict):
+    """POST /edit: change some segments of a motion the service made and keep the others' codes."""
+
+    handle: Annotated[str, StringConstraints(min_length=1, max_length=MAX_HANDLE_FIELD_CHARS)] = Field(
+        description="The `handle` of a json answer of /generate or /edit.")
+    edits: list[Edit] = Field(
+        default_factory=list, max_length=MAX_SEGMENTS,
+        description="What to change: regenerate edits ({segment, text?, seed?, duration?}, each segment at most "
+                    "once) and continue edits ({op: append | prepend, segments, seed?}). Empty: the handle's motion "
+                    "again, bit for bit (e.g. in another format).")
+    format: OutputFormat = Field("json", description="json (joints, with the new handle), bvh or glb.")
+    model: ModelName | None = Field(None, description="The served model to use; null = the handle's own. Either way "
+                                                      "it must be the model (name and version) that made the handle.")
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [
+        {"handle": "t2m1....", "edits": [{"segment": 1, "text": "a person raises the left hand"}]},
+        {"handle": "t2m1....", "edits": [{"segment": 0, "seed": 7}, {"segment": 2, "duration": 4.0}]},
+        {"handle": "t2m1....", "edits": [{"op": "append", "segments": [{"text": "a person sits down",
+                                                                        "duration": 3.0}]}], "format": "bvh"}]})
+
+
+class EditedSegment(BaseModel):
+    segment: int = Field(description="Index in the answer's segments.")
+    seed: int = Field(description="The seed it was sampled with (send it back to get the same segment again).")
+
+
 class SegmentSpanOut(BaseModel):
     text: str
     start_frame: int = Field(description="First frame of the segment.")
@@ -155,6 +235,17 @@ class MotionResponse(BaseModel):
     seed: int
     model: ModelInfo
     warnings: list[str] = Field(default_factory=list)
+    handle: str | None = Field(
+        None, description="The motion's codes, segments and options in one compact string (`t2m1.` + base64url; "
+                          "docs/api.md): send it to POST /edit to change some segments and keep the others. null "
+                          "for a model whose codes are not tokens (the diffusion family).")
+
+
+class EditResponse(MotionResponse):
+    """The json answer of POST /edit: the whole edited motion, as /generate answers it, and which segments were
+    sampled (the others' codes are the handle's); `seed` is the handle's."""
+
+    edited: list[EditedSegment] = Field(default_factory=list)
 
 
 class RequestLimits(BaseModel):

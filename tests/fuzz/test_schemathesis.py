@@ -32,8 +32,11 @@ API_KEY = "fuzz-test-key"
 AUTH = {"Authorization": f"Bearer {API_KEY}"}
 # The rules beyond the schema (service/schemas.py model_limit_errors, unknown_model_error, the total-duration and the
 # stream-only-as-json validators).
+# POST /edit: a handle is opaque to the schema (its checks, t2m/service/handles.py, all name `handle`), and so are
+# the edits' limits that depend on it (a segment it lacks, the edited motion's length, the family's edit kinds).
 RULES_BEYOND_SCHEMA = ("total duration", "codebook size", "this model makes at most", "no model named",
-                       "only the json format streams")
+                       "only the json format streams", "handle", "the edited motion would", "the edits it supports",
+                       "edited twice")
 
 
 def _published_schema() -> dict:

@@ -23,7 +23,8 @@ def test_json_answer_layout(app_client):
     assert response.headers["content-type"] == "application/json"
     assert response.headers["X-Seed"] == "123"
     data = response.json()
-    assert set(data) == {"fps", "joints", "parents", "frames", "segments", "seed", "model", "warnings"}
+    assert set(data) == {"fps", "joints", "parents", "frames", "segments", "seed", "model", "warnings", "handle"}
+    assert data["handle"].startswith("t2m1.")   # POST /edit takes it back (tests/service/test_edit.py)
     assert data["fps"] == 20 and len(data["joints"]) == 22 and data["joints"][0] == "pelvis"
     assert data["parents"][:4] == [-1, 0, 0, 0]
     frames = np.asarray(data["frames"])

@@ -108,6 +108,7 @@ def _generate(args: argparse.Namespace) -> int:
 
     from t2m.service.engine.engine import OnnxEngine
     from t2m.service.formats import render
+    from t2m.service.handles import make_handle
     from t2m.service.settings import Settings
 
     bundle = args.model if args.model is not None else Settings().bundle_path
@@ -116,8 +117,10 @@ def _generate(args: argparse.Namespace) -> int:
     if errors:
         raise CliError(_one_line([{**e, "loc": e["loc"][1:]} for e in errors]))
     seed = request.seed if request.seed is not None else secrets.randbits(31)
-    motion = engine.generate(to_generation_request(request, engine.limits, seed))
-    rendered = render(motion, fmt, engine.limits)
+    generation = to_generation_request(request, engine.limits, seed)
+    motion = engine.generate(generation)
+    handle = make_handle(engine.limits, generation, motion.codes) if fmt == "json" else None   # `t2m edit` takes it
+    rendered = render(motion, fmt, engine.limits, handle)
     args.output.write_bytes(rendered.body)
     frames = len(motion.joints)
     print(f"wrote {args.output}: {frames} frames ({frames / motion.fps:.1f} s), {len(motion.segments)} segments, "

@@ -25,7 +25,7 @@ from t2m.service.engine.bundle import Bundle, load_bundle
 from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
 from t2m.service.engine.decoder import Decoder
 from t2m.service.engine.execution import Execution
-from t2m.service.engine.family_codes import FamilyCodes, decoder_reach, ends_segments
+from t2m.service.engine.family_codes import FamilyCodes, code_layout, decoder_reach, ends_segments
 from t2m.service.engine.reach import DecoderReach, probe_reach
 from t2m.service.engine.requests import segment_steps
 from t2m.service.engine.step_order import StepOrder
@@ -98,7 +98,7 @@ class OnnxEngine:
                      "streaming": self._streaming_details(),
                      "family": manifest.family,
                      **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
-            ends_segments=ends_segments(self.codes))
+            ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits)
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -214,6 +214,15 @@ class OnnxEngine:
             log.exception("decoding failed")
             return error
 
+    def compose(self, request: GenerationRequest, segment_codes: Sequence[np.ndarray]) -> Motion:
+        """The motion of given codes, one array per segment of `request` (an edit: kept segments' codes from a
+        handle, the regenerated ones' just sampled), decoded once and fitted to the request's durations exactly as
+        a generated request's are; nothing is sampled. The codes must be the model's (service/handles.py checks a
+        handle's against `limits.codes`)."""
+        if len(segment_codes) != len(request.segments):
+            raise ValueError(f"{len(segment_codes)} code arrays for {len(request.segments)} segments")
+        return self._motion(request, [np.asarray(codes, dtype=np.int64) for codes in segment_codes], [])
+
     def continuous(self, order: StepOrder | None = None) -> RunningCohorts | None:
         """A continuous-batching session (requests join and leave at step boundaries; `order` picks the cohorts
         that step at each: the shortest work first by default) for the families that can, or None (e.g. the masked
@@ -250,4 +259,4 @@ class OnnxEngine:
             warnings.append(f"guidance {request.guidance:g} requested but model {self.limits.name!r} was trained "
                             "without an unconditional branch; the null-condition logits are untrained")
         return Motion(joints=joints, fps=self.limits.fps, segments=spans, seed=request.seed,
-                      tokens=sum(decoded) // per_token, warnings=warnings)
+                      tokens=sum(decoded) // per_token, warnings=warnings, codes=list(segment_codes))

@@ -7,7 +7,9 @@ say `continuous_batching` also start cohorts that step at shared boundaries (t2m
 whose model can end a segment given no duration says how in an `ends_segments` attribute (a few words, shown by
 /health; see `ends_segments` below); without it a client is told that a null duration is refused. An object whose
 decoder.onnx reads something other than codes (the diffusion family: normalised frames) measures that decoder's
-reach itself and gives it as a `decoder_reach` attribute (engine/reach.py's DecoderReach; see `decoder_reach`)."""
+reach itself and gives it as a `decoder_reach` attribute (engine/reach.py's DecoderReach; see `decoder_reach`). An
+object whose codes are tokens says what a step of them is in a `code_layout` attribute (types.CodeLayout: what an
+answer's handle carries and checks; see `code_layout`); without it answers carry no handle."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -16,9 +18,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits
+from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
 
-__all__ = ["FamilyCodes", "FamilyJob", "decoder_reach", "ends_segments"]
+__all__ = ["FamilyCodes", "FamilyJob", "code_layout", "decoder_reach", "ends_segments"]
 
 
 class FamilyJob(Protocol):
@@ -51,3 +53,10 @@ def decoder_reach(codes: object) -> Any:
     """The decoder's reach the family's served object measured itself (its optional `decoder_reach` attribute), or
     None: the engine probes the decoder with codes (engine/reach.py)."""
     return getattr(codes, "decoder_reach", None)
+
+
+def code_layout(codes: object) -> CodeLayout | None:
+    """What one step of the family's codes is (its optional `code_layout` attribute), or None: its codes are not
+    tokens (the diffusion family's frames) and its answers carry no handle."""
+    layout = getattr(codes, "code_layout", None)
+    return layout if isinstance(layout, CodeLayout) else None

@@ -12,7 +12,7 @@ from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.requests import check_top_k, segment_steps
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits
+from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
 
 __all__ = ["GptCodes", "lockstep_job"]
 
@@ -40,6 +40,7 @@ class GptCodes:
         self.step = step_class(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,
                                gpt.length_conditioning)
         self.end_id = gpt.end_id
+        self.code_layout = CodeLayout((), (bundle.manifest.codebook_size,))   # one code per step (End excluded)
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
         return lockstep_job(request, text, limits)

@@ -19,7 +19,7 @@ from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.gpt_codes import lockstep_job
 from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits
+from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
 
 __all__ = ["HiFiGPTCodes"]
 
@@ -41,6 +41,7 @@ class HiFiGPTCodes:
                                        block.length_conditioning)
         self.residual = residual_class(bundle.sessions["residual_step.onnx"], block.n_layer_residual,
                                        block.n_head, block.head_dim)
+        self.code_layout = CodeLayout((manifest.residual_layers,), (manifest.codebook_size,))   # a row of R codes
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
         return lockstep_job(request, text, limits)

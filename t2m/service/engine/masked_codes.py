@@ -22,7 +22,7 @@ from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 from t2m.service.engine.requests import check_top_k, segment_steps
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits
+from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
 
 __all__ = ["MaskedCodes", "draw_rows"]
 
@@ -50,6 +50,12 @@ class MaskedCodes:
                          for b in settings.branches]
         self.length: ort.InferenceSession | None = bundle.sessions.get("length.onnx")
         self.ends_segments = None if self.length is None else "a length drawn from its length estimator"
+        # a row of the map the decoder reads: the primary columns, then each branch's, each its own codebook; -1 is
+        # a residual layer left unused (t2m.decoding.masked)
+        bounds = [bundle.manifest.codebook_size] * settings.columns
+        for branch in settings.branches:
+            bounds += [branch.codebook_size] * branch.columns
+        self.code_layout = CodeLayout((len(bounds), bundle.manifest.residual_layers), tuple(bounds), low=-1)
 
     @staticmethod
     def _steps(bundle: Bundle, files: tuple[str, str], columns: int, mask_id: int, pad_id: int,

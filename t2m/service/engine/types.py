@@ -15,6 +15,7 @@ import numpy as np
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 __all__ = [
+    "CodeLayout",
     "Engine",
     "FrameSink",
     "GenerationCancelled",
@@ -45,6 +46,37 @@ def frames_for_duration(duration: float, fps: int = FPS) -> int:
 
 
 @dataclass(frozen=True)
+class CodeLayout:
+    """What one code step of a segment is, for the model's decoder: an array of `shape` (() for one code, (R,) for
+    a residual row, (C, R) for a joint-token map's row) whose values along its first axis's column c are
+    low..bounds[c] - 1 (a single bound holds for every value; `low` -1 where -1 marks an unused residual layer, as
+    in the masked family's maps). What an answer's handle carries per step (service/handles.py) and checks coming
+    back."""
+
+    shape: tuple[int, ...]
+    bounds: tuple[int, ...]
+    low: int = 0
+
+    def __post_init__(self) -> None:
+        columns = self.shape[0] if self.shape else 1
+        if len(self.bounds) not in (1, columns):
+            raise ValueError(f"{len(self.bounds)} code bounds for {columns} column(s)")
+
+    @property
+    def values(self) -> int:
+        """Values per step."""
+        return int(np.prod(self.shape, dtype=np.int64)) if self.shape else 1
+
+    def out_of_range(self, codes: np.ndarray) -> np.ndarray:
+        """Per step of `codes` [steps, *shape]: whether any value lies outside its column's low..bound - 1."""
+        columns = len(self.bounds)
+        rows = np.asarray(codes).reshape(len(codes), columns, -1)
+        bounds = np.asarray(self.bounds, dtype=np.int64).reshape(1, columns, 1)
+        outside = (rows < self.low) | (rows >= bounds)
+        return np.asarray(outside.reshape(len(codes), -1).any(axis=1))
+
+
+@dataclass(frozen=True)
 class ModelLimits:
     """What the HTTP layer needs to know about the loaded model to validate and default a request."""
 
@@ -62,6 +94,8 @@ class ModelLimits:
     parents: tuple[int, ...] = ()
     details: dict = field(default_factory=dict)   # extra facts shown by /health (licence, text encoder, ...)
     ends_segments: str | None = None   # how the model ends a segment of null duration (None: it cannot; a 422)
+    codes: CodeLayout | None = None    # its segments' codes as handles carry them (None: not tokens, no handle)
+    edits: frozenset[str] = frozenset()   # the edit kinds POST /edit serves for it (its family's capabilities)
 
     def guidance(self, requested: float | None = None) -> float:
         """The guidance scale to use: the requested one, else the model's default (1 = off for a model without a
@@ -130,6 +164,7 @@ class Motion:
     seed: int
     tokens: int = 0             # code tokens generated (for metrics)
     warnings: list[str] = field(default_factory=list)
+    codes: list[np.ndarray] | None = None   # each segment's codes as decoded (what an answer's handle keeps)
 
 
 class RequestLimitError(ValueError):

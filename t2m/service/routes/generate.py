@@ -14,7 +14,7 @@ from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
-from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, RequestLimitError
+from t2m.service.engine.types import GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError
 from t2m.service.formats import (
     STREAM_MEDIA_TYPE,
     ndjson,
@@ -24,6 +24,7 @@ from t2m.service.formats import (
     stream_frames,
     stream_start,
 )
+from t2m.service.handles import make_handle
 from t2m.service.registry import ServedModel
 from t2m.service.scheduling import GenerationTimeout, QueueFullError
 from t2m.service.schemas import (
@@ -37,7 +38,7 @@ from t2m.service.schemas import (
 from t2m.service.settings import Settings
 from t2m.service.streaming import MotionStream
 
-__all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "router"]
+__all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "http_error", "motion_answer", "router"]
 
 RANDOM_SEED_BITS = 31   # seeds we pick fit any client's integers (JavaScript included)
 STREAM_CHUNK_FRAMES = 40   # frames per message of what is sent with the whole motion (2 s at 20 fps)
@@ -89,20 +90,28 @@ async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_st
     try:
         motion = await model.batcher.generate(request, settings.request_timeout_s)
     except Exception as error:
-        raise _http_error(error, settings) from None
+        raise http_error(error, settings) from None
     state.metrics.count_generation(model.name, motion.tokens, len(motion.segments))
 
-    rendered = await run_in_threadpool(render, motion, body.format, limits)
-    headers = {"X-Seed": str(motion.seed)}
+    return await motion_answer(motion, body.format, limits, request)
+
+
+async def motion_answer(motion: Motion, fmt: str, limits: ModelLimits, request: GenerationRequest,
+                        extra: dict[str, Any] | None = None) -> Response:
+    """The answer of a motion made for `request` (its json with the handle and `extra`'s fields, or the file), with
+    its headers: X-Seed (the request's), X-T2M-Warnings, a file's Content-Disposition."""
+    handle = make_handle(limits, request, motion.codes) if fmt == "json" else None
+    rendered = await run_in_threadpool(render, motion, fmt, limits, handle, extra)
+    headers = {"X-Seed": str(request.seed)}
     if motion.warnings:
         # headers are latin-1: anything else (e.g. a model name) becomes '?'
         headers["X-T2M-Warnings"] = " | ".join(motion.warnings).encode("ascii", "replace").decode()
-    if body.format != "json":
+    if fmt != "json":
         headers["Content-Disposition"] = f'attachment; filename="{rendered.filename}"'
     return Response(content=rendered.body, media_type=rendered.media_type, headers=headers)
 
 
-def _http_error(error: Exception, settings: Settings) -> Exception:
+def http_error(error: Exception, settings: Settings) -> Exception:
     """The HTTP answer for a failed generation; an error without one (an engine failure) is itself, a 500."""
     if isinstance(error, QueueFullError):
         return HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, detail=f"server busy: {error}",
@@ -131,7 +140,7 @@ async def _stream(model: ServedModel, request: GenerationRequest, state: Service
     except Exception as error:
         if stream is not None:
             stream.close()
-        raise _http_error(error, state.settings) from None
+        raise http_error(error, state.settings) from None
     state.metrics.first_frame.labels(model.name).observe(time.perf_counter() - started)
     # X-Accel-Buffering: a proxy such as nginx passes each message on at once instead of buffering the answer
     headers = {"X-Seed": str(request.seed), "Cache-Control": "no-store", "X-Accel-Buffering": "no"}
@@ -153,9 +162,9 @@ async def _messages(stream: MotionStream, first: Any, model: ServedModel,
         for start in range(sent, len(item.joints), STREAM_CHUNK_FRAMES):
             yield ndjson(stream_frames(start, item.joints[start:start + STREAM_CHUNK_FRAMES]))
         state.metrics.count_generation(model.name, item.tokens, len(item.segments))
-        yield ndjson(stream_end(item, limits))
+        yield ndjson(stream_end(item, limits, make_handle(limits, stream.request, item.codes)))
     except Exception as error:   # the 200 has gone out: the failure can only be told in the stream
-        answer = _http_error(error, state.settings)
+        answer = http_error(error, state.settings)
         if isinstance(answer, HTTPException):
             yield ndjson(stream_error(answer.status_code, str(answer.detail)))
         else:

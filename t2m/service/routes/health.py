@@ -38,4 +38,5 @@ def _details(model: ServedModel, settings: Settings) -> ModelDetails:
                         default_guidance=limits.default_guidance, unconditional_branch=limits.unconditional_branch,
                         length_conditioning=limits.length_conditioning,
                         limits=request_limits(limits, settings.max_body_bytes, settings.request_timeout_s),
-                        extra={**limits.details, "load_seconds": model.load_seconds})
+                        extra={**limits.details, "load_seconds": model.load_seconds,
+                               "edits": sorted(limits.edits)})

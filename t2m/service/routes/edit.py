@@ -1,0 +1,111 @@
+"""POST /edit: a motion the service made (its answer's `handle`) with some segments sampled again or added, the other
+segments' codes kept, all decoded once: the frames before the edit and outside the decoder's reach of it are the
+handle's bit for bit, the frames after it the same motion rigidly moved (docs/api.md states the exact rule).
+Stateless: the handle carries everything (service/handles.py)."""
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+from fastapi import APIRouter, Depends, Response
+from fastapi.exceptions import RequestValidationError
+from starlette.concurrency import run_in_threadpool
+
+from t2m.service.dependencies import ServiceState, ready_state, require_api_key
+from t2m.service.editing import EditError, EditPlan, plan_edit
+from t2m.service.engine.types import Motion, RequestLimitError
+from t2m.service.formats import STREAM_MEDIA_TYPE
+from t2m.service.handles import HandleError, handle_model, read_handle
+from t2m.service.registry import ServedModel
+from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
+from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["generation"])
+
+_EDIT_RESPONSES: dict[int | str, dict[str, Any]] = {
+    **_RESPONSES,
+    200: {"description": "The edited motion. json: EditResponse (with a new handle); bvh: BVH text; glb: glTF binary. "
+                         "Headers: X-Seed (the handle's seed), X-T2M-Warnings (if any).",
+          "content": {media: schema for media, schema in _RESPONSES[200]["content"].items()
+                      if media != STREAM_MEDIA_TYPE}},
+}
+
+
+def _handle_error(error: HandleError) -> RequestValidationError:
+    return RequestValidationError([{"type": "value_error", "loc": ("body", "handle"), "msg": str(error),
+                                    "input": None}])
+
+
+def _model_of(body: EditRequest, state: ServiceState) -> ServedModel:
+    """The model the body names, else the served model of the name the handle names (its version and everything
+    else are checked by read_handle against that model)."""
+    assert state.models is not None
+    if body.model is not None:
+        model = state.models.get(body.model)
+        if model is None:
+            raise RequestValidationError([unknown_model_error(body.model, state.models.names)])
+        return model
+    try:
+        name, version = handle_model(body.handle)
+    except HandleError as error:
+        raise _handle_error(error) from None
+    model = state.models.get(name)
+    if model is None:
+        raise _handle_error(HandleError("handle.model", f"made by model {name!r} version {version!r}, which this "
+                                        f"service does not serve ({', '.join(map(repr, state.models.names))})"))
+    return model
+
+
+@router.post("/edit", response_model=EditResponse, responses=_EDIT_RESPONSES, dependencies=[Depends(require_api_key)],
+             summary="Edit a motion: regenerate some segments, append or prepend others, keep the rest")
+async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) -> Response:
+    """`handle` is a json answer's handle (of /generate or /edit). Each regenerate edit samples its segment again (a
+    new text, seed or duration); append and prepend edits add segments; every other segment keeps its codes, and
+    the codes are decoded once: frames before the edit and outside the decoder's reach are the handle's bit for bit,
+    frames after it the same motion rigidly moved (the root's path is a running sum; docs/api.md gives the rule). No
+    edits answers the handle's motion again, bit for bit. The model must be the one (name and version) that made the
+    handle; a family answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`). A 422
+    names the field: `handle` for a handle that is corrupted, altered, out of the model's ranges or another model's
+    (the message names the part: `handle.checksum`, `handle.segments.0.codes`, `handle.model`), `edits.<i>...` for
+    an edit the handle or the model does not allow."""
+    model = _model_of(body, state)
+    limits = model.limits
+    try:
+        handle = read_handle(body.handle, limits)
+        plan = plan_edit(handle, body.edits, limits)
+    except HandleError as error:
+        raise _handle_error(error) from None
+    except EditError as error:
+        raise RequestValidationError([error.error()]) from None
+    sampled = await _sample(plan, model, state)
+    compose = getattr(model.engine, "compose", None)
+    if compose is None:
+        raise _handle_error(HandleError("handle", f"model {limits.name!r} cannot decode codes it is given"))
+    request = plan.request(handle)
+    motion: Motion = await run_in_threadpool(compose, request, plan.codes([m.codes or [] for m in sampled]))
+    motion.warnings = plan.warnings(sampled, motion)
+    state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
+    edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
+    return await motion_answer(motion, body.format, limits, request, {"edited": edited})
+
+async def _sample(plan: EditPlan, model: ServedModel, state: ServiceState) -> list[Motion]:
+    """The plan's parts through the model's batcher together (each its own request and seed); one failing cancels
+    the others and answers as a failed generation would, its field the edit's."""
+    timeout = state.settings.request_timeout_s
+    tasks = [asyncio.ensure_future(model.batcher.generate(part.request, timeout)) for part in plan.parts]
+    try:
+        return list(await asyncio.gather(*tasks))
+    except BaseException as error:
+        for sampled, task in zip(plan.parts, tasks):
+            sampled.request.cancel()
+            task.cancel()
+        if isinstance(error, RequestLimitError):
+            failed = next(i for i, task in enumerate(tasks) if task.done() and not task.cancelled()
+                          and task.exception() is error)
+            raise RequestValidationError([{"type": "value_error", "loc": plan.field_of(failed, str(error)),
+                                           "msg": str(error), "input": None}]) from None
+        if isinstance(error, Exception):
+            raise http_error(error, state.settings) from None
+        raise
