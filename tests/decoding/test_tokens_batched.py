@@ -8,9 +8,9 @@ import pytest
 from t2m.decoding.lockstep import Rows, SamplingJob, draw_for_jobs, guided
 from t2m.decoding.tokens import RowRule, draw_tokens, draw_tokens_of_jobs, sample_tokens
 
-OPTIONS = [dict(temperature=1.0, top_k=None, greedy=False), dict(temperature=0.7, top_k=5, greedy=False),
-           dict(temperature=1.3, top_k=None, greedy=True), dict(temperature=1.0, top_k=40, greedy=False),
-           dict(temperature=0.9, top_k=5, greedy=False)]
+OPTIONS = [{"temperature": 1.0, "top_k": None, "greedy": False}, {"temperature": 0.7, "top_k": 5, "greedy": False},
+           {"temperature": 1.3, "top_k": None, "greedy": True}, {"temperature": 1.0, "top_k": 40, "greedy": False},
+           {"temperature": 0.9, "top_k": 5, "greedy": False}]
 
 
 @pytest.mark.parametrize("seed", range(5))
