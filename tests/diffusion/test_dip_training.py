@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.families.diffusion_random import TEXT_DIM, TEXT_MAX_LENGTH, TinyTokenEncoder, tiny_token_text_source
+from t2m.export.families.diffusion_random import TEXT_DIM, TEXT_MAX_LENGTH, TinyTokenEncoder
+from t2m.export.kit.text_sources import served_token_text_source
 from t2m.model.networks.diffusion_text import TokenStateEncoder, cache_token_states
 from t2m.model.training import train_dip
 from tests.model.synthetic_motion_data import CAPTIONS, make_dataset
@@ -119,12 +120,12 @@ def test_the_export_takes_the_ema_weights_and_the_bundle_serves(setup):
     from t2m.service.engine.engine import OnnxEngine
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
-    root, _, _ = setup
+    root, _, encoder = setup
     run = root / "falls"
     net = load_model(run, expect_kind="dip")
     pairs = zip(net.model_avg.parameters(), net.model.parameters())
     assert max(float((a - p).detach().abs().max()) for a, p in pairs) > 1e-3     # the EMA lags the trained weights
-    manifest, checks = export_dip_from_run(run, root / "bundle", text_source=tiny_token_text_source(seed=0))
+    manifest, checks = export_dip_from_run(run, root / "bundle", text_source=served_token_text_source(encoder))
     assert checks["parity"]["denoiser_max_abs"] < 1e-4
     assert manifest["diffusion"]["context_len"] == 8 and manifest["diffusion"]["pred_len"] == 16
     rng = np.random.default_rng(0)
@@ -137,6 +138,12 @@ def test_the_export_takes_the_ema_weights_and_the_bundle_serves(setup):
         given = [torch.from_numpy(inputs[n]) for n in denoiser_inputs(net.model_avg)]
         ema, trained = net.model_avg.eval()(*given).numpy(), net.model.eval()(*given).numpy()
     assert np.abs(served - ema).max() < 1e-4 < np.abs(served - trained).max()
+
+    text = ort.InferenceSession(str(root / "bundle" / "text_encoder.onnx"), providers=["CPUExecutionProvider"])
+    ids, mask = encoder.tokenize(list(CAPTIONS))
+    (token_states,) = text.run(["token_states"], {"input_ids": ids.numpy(), "attention_mask": mask.numpy()})
+    states, real = encoder.encode(list(CAPTIONS))                  # the graph gives what training cached
+    np.testing.assert_allclose(token_states[real], states[real], atol=1e-5)
 
     engine = OnnxEngine.load(root / "bundle", intra_op_threads=1)
     motion = engine.generate(GenerationRequest(segments=[SegmentRequest("a person walks forward", 1.5),
