@@ -21,7 +21,7 @@ __all__ = ["MDM_MAX_FRAMES", "PREFIX_FILE", "TRAINED_MAX_FRAMES", "denoiser_pari
            "export_dip_from_run", "standing_prefix"]
 
 MDM_MAX_FRAMES = 196          # generate.py's limit for HumanML3D / KIT
-TRAINED_MAX_FRAMES = 196      # the longest sentence of a DiP trained here (HumanML3D's 9.8 s; DiP has no own limit)
+TRAINED_MAX_FRAMES = 200      # a sentence of a DiP trained here: 10 s, as the embedded models (DiP has no own limit)
 PREFIX_FILE = "prefix.npy"
 JOIN_FRAMES = 10              # frames made anew on each side of an MDM join (0.5 s at 20 fps)
 JOIN_CONTEXT = 10             # known frames kept around them on each side
