@@ -17,7 +17,7 @@ import argparse
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from t2m.bundle.errors import BundleError
 from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
@@ -89,6 +89,10 @@ class DiffusionFamily(ModelFamily):
     # what every bundle of the family can do; a bundle's own answer is capabilities_of(manifest)
     capabilities = Capabilities(why_not_early="an MDM motion exists only after its last diffusion step (and its "
                                               "joins are in-betweened after that)")
+    training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {
+        "dip": ("t2m.model.training.train_dip", "train a small DiP (MiniLM token states) on a dataset")}
+    checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {
+        "dip": ("t2m.model.networks.diffusion", "AveragedMDM", "DiffusionConfig")}
 
     def capabilities_of(self, manifest: Any) -> Capabilities:
         """DiP streams call by call (each call's frames are final: later calls only read them); MDM's whole motions
@@ -173,18 +177,27 @@ class DiffusionFamily(ModelFamily):
         return DiffusionCodes(bundle)
 
     def add_export_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--diffusion-run", type=Path, default=None, metavar="RUN",
+                           help="family diffusion: a `t2m train dip` run (its EMA weights, MiniLM token states)")
         group.add_argument("--diffusion-random", choices=("mdm", "dip"), default=None,
-                           help="family diffusion: a tiny random-weight MDM or DiP bundle (plumbing tests); real "
+                           help="family diffusion: a tiny random-weight MDM or DiP bundle (plumbing tests); released "
                                 "models come from `t2m import mdm|dip`")
         group.add_argument("--diffusion-seed", type=int, default=None, metavar="N",
                            help="family diffusion: seed of the random weights (default 0)")
 
     def check_export_arguments(self, args: argparse.Namespace) -> None:
-        if args.diffusion_random is None:
-            raise ValueError("--family diffusion exports only tiny random-weight bundles (--diffusion-random mdm|dip);"
-                             " import a released MDM or DiP with `t2m import mdm|dip`")
+        if (args.diffusion_random is None) == (args.diffusion_run is None):
+            raise ValueError("--family diffusion exports a trained run (--diffusion-run RUN, from `t2m train dip`) "
+                             "or a tiny random-weight bundle (--diffusion-random mdm|dip), one of the two; import a "
+                             "released MDM or DiP with `t2m import mdm|dip`")
 
     def export(self, args: argparse.Namespace, int8: frozenset[str]) -> tuple[dict, dict]:
+        if args.diffusion_run is not None:
+            from t2m.export.families.diffusion import export_dip_from_run
+
+            return export_dip_from_run(args.diffusion_run, args.output, name=args.name, version=args.version,
+                                       default_guidance=args.guidance, model_card=args.model_card,
+                                       data_summary=args.data_summary, check_parity=not args.skip_parity)
         from t2m.export.families.diffusion_random import build_random_diffusion_bundle
 
         manifest = build_random_diffusion_bundle(

@@ -17,9 +17,11 @@ from t2m.bundle.manifest import COMMON_FILES
 from t2m.export.kit.text_sources import TextSource
 from t2m.model.networks.diffusion import MDM
 
-__all__ = ["MDM_MAX_FRAMES", "PREFIX_FILE", "export_diffusion_bundle", "standing_prefix"]
+__all__ = ["MDM_MAX_FRAMES", "PREFIX_FILE", "TRAINED_MAX_FRAMES", "denoiser_parity", "export_diffusion_bundle",
+           "export_dip_from_run", "standing_prefix"]
 
 MDM_MAX_FRAMES = 196          # generate.py's limit for HumanML3D / KIT
+TRAINED_MAX_FRAMES = 200      # a sentence of a DiP trained here: 10 s, as the embedded models (DiP has no own limit)
 PREFIX_FILE = "prefix.npy"
 JOIN_FRAMES = 10              # frames made anew on each side of an MDM join (0.5 s at 20 fps)
 JOIN_CONTEXT = 10             # known frames kept around them on each side
@@ -106,3 +108,78 @@ def export_diffusion_bundle(
     (out_dir / "MODEL_CARD.md").write_text(card, encoding="utf-8")
     files["MODEL_CARD.md"] = out_dir / "MODEL_CARD.md"
     return write_bundle(out_dir, files, manifest)
+
+
+def denoiser_parity(model: MDM, graph: str | Path, seed: int = 0) -> float:
+    """Largest |onnxruntime - PyTorch| of the denoiser graph on a random DiP/MDM input (two rows, all steps' ends)."""
+    import onnxruntime as ort
+    import torch
+
+    from t2m.export.graphs.diffusion import denoiser_inputs
+
+    c = model.config
+    rng = np.random.default_rng(seed)
+    frames = c.pred_len or 8
+    inputs: dict[str, np.ndarray] = {
+        "x_t": rng.normal(size=(2, frames, c.features)).astype(np.float32),
+        "t": np.array([c.diffusion_steps - 1, 0], np.int64),
+        "text": rng.normal(size=(2, 5, c.text_dim) if c.text_tokens else (2, c.text_dim)).astype(np.float32),
+        "text_mask": np.array([[True] * 5, [True] * 3 + [False] * 2]),
+        "length": np.array([frames, frames], np.int64),
+        "prefix": rng.normal(size=(2, max(c.context_len, 1), c.features)).astype(np.float32)}
+    names = denoiser_inputs(model)
+    session = ort.InferenceSession(str(graph), providers=["CPUExecutionProvider"])
+    (served,) = session.run(["x0"], {name: inputs[name] for name in names})
+    with torch.no_grad():
+        given = {name: torch.from_numpy(inputs[name]) for name in names}
+        expected = model.eval()(given["x_t"], given["t"], given["text"], given.get("text_mask"),
+                                given.get("length"), given.get("prefix")).numpy()
+    return float(np.abs(served - expected).max())
+
+
+def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | None = None, version: str = "0.1.0",
+                        default_guidance: float | None = None, model_card: str | Path | None = None,
+                        data_summary: str | Path | None = None, text_source: TextSource | None = None,
+                        check_parity: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A `t2m train dip` run -> a DiP bundle: its EMA weights (model_avg), the MiniLM token-state text graph it was
+    trained on (`text_source` replaces it in tests), the run's mean/std, the standing prefix; returns (manifest,
+    checks)."""
+    from t2m.export.kit.runs import run_training_data
+    from t2m.export.kit.text_sources import served_token_text_source
+    from t2m.model.networks.diffusion import AveragedMDM
+    from t2m.model.networks.diffusion_text import minilm_token_encoder
+    from t2m.model.training.checkpoint import load_model, read_run_config
+
+    run = Path(run)
+    record = read_run_config(run)
+    if record["kind"] != "dip":
+        raise ValueError(f"{run}/config.json: expected a dip checkpoint (t2m train dip), found {record['kind']!r}")
+    averaged = load_model(run, expect_kind="dip")
+    assert isinstance(averaged, AveragedMDM)
+    model = averaged.model_avg.eval()
+    data = record.get("data", {})
+    text = data.get("text_encoder") or {}
+    if text_source is None:
+        if text.get("kind") != "minilm-tokens":
+            raise ValueError(f"{run}: trained on {text.get('kind')!r} token states; only minilm-tokens is exported")
+        text_source = served_token_text_source(minilm_token_encoder())
+    mean, std = np.load(run / "mean.npy"), np.load(run / "std.npy")
+    training_data = run_training_data(run, data, {}, data_summary)
+    training = data.get("training", {})
+    guidance = 2.5 if default_guidance is None else float(default_guidance)
+    notes = ("## Provenance\n\n"
+             f"- dip run: `{run.name}` (step {record.get('step')}), EMA weights (decay {training.get('ema_decay')}), "
+             f"condition dropout {training.get('cond_mask_prob')}, {text.get('kind')} token states\n")
+    if model_card:
+        notes += "\n" + Path(model_card).read_text(encoding="utf-8")
+    c = model.config
+    manifest = export_diffusion_bundle(
+        out_dir, model=model, mean=mean, std=std, text_source=text_source,
+        name=name or f"t2m-{training_data['name']}-dip-minilm", version=version, training_data=training_data,
+        license=training_data["license"], default_guidance=guidance,
+        unconditional_branch=float(training.get("cond_mask_prob", 0.0)) > 0, max_frames=TRAINED_MAX_FRAMES,
+        description=f"A small DiP trained here ({c.layers} decoder layers, latent {c.latent_dim}) on "
+                    f"{training_data['name']}: {c.pred_len}-frame calls after {c.context_len} frames, "
+                    f"{c.diffusion_steps} DDPM steps, MiniLM token states.", notes=notes)
+    parity = denoiser_parity(model, Path(out_dir) / "denoiser.onnx") if check_parity else None
+    return manifest, {"parity": {"denoiser_max_abs": parity} if parity is not None else "skipped", "int8": {}}

@@ -39,7 +39,7 @@ from torch import nn
 from t2m.model.networks.config import ConfigDict
 from t2m.model.networks.gpt import sinusoid_table
 
-__all__ = ["MDM", "DiffusionConfig", "released_weights"]
+__all__ = ["MDM", "AveragedMDM", "DiffusionConfig", "released_weights"]
 
 ARCHS = ("trans_enc", "trans_dec")
 FEATURES = {"humanml": 263, "kit": 251}
@@ -353,3 +353,26 @@ class MDM(nn.Module):
         if not self.config.mask_frames or length is None or frames <= 1:
             return None
         return torch.arange(frames, device=length.device)[None, :] < length[:, None]
+
+
+class AveragedMDM(nn.Module):
+    """A model trained here (`t2m train dip`) with its EMA copy, as the 2025 official trainer keeps them
+    (``{'model', 'model_avg'}`` with ``use_ema``): ``model`` is what the optimiser trains; ``model_avg`` (no
+    gradients) follows it after each update, avg <- decay * avg + (1 - decay) * param over the parameters (the
+    buffers are the fixed pe tables). forward is the trained model's; exports and evaluation take ``model_avg``."""
+
+    def __init__(self, config: DiffusionConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.model = MDM(config)
+        self.model_avg = MDM(config)
+        self.model_avg.load_state_dict(self.model.state_dict())
+        self.model_avg.requires_grad_(False)
+
+    def forward(self, *args: Any, **kwargs: Any) -> torch.Tensor:
+        return self.model(*args, **kwargs)
+
+    @torch.no_grad()
+    def update_average(self, decay: float) -> None:
+        for average, parameter in zip(self.model_avg.parameters(), self.model.parameters()):
+            average.lerp_(parameter, 1.0 - decay)

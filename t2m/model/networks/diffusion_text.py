@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -34,8 +35,9 @@ from t2m.model.networks.text_encoders import MINILM_MAX_LENGTH, ClipEncoder, Tok
 if TYPE_CHECKING:
     from tokenizers import Tokenizer
 
-__all__ = ["MDM_CLIP_CONTEXT", "MDM_MAX_TEXT_TOKENS", "MdmClipEncoder", "TokenStateEncoder", "clip_encode_text_fp16",
-           "distilbert_encoder", "mdm_clip_features", "minilm_token_encoder"]
+__all__ = ["MDM_CLIP_CONTEXT", "MDM_MAX_TEXT_TOKENS", "MdmClipEncoder", "TokenStateCache", "TokenStateEncoder",
+           "cache_token_states", "clip_encode_text_fp16", "distilbert_encoder", "mdm_clip_features",
+           "minilm_token_encoder"]
 
 MDM_MAX_TEXT_TOKENS = 20                        # mdm.py: max_text_len = 20 for humanml / kit
 MDM_CLIP_CONTEXT = MDM_MAX_TEXT_TOKENS + 2      # clip.tokenize(..., context_length=22, truncate=True)
@@ -156,3 +158,71 @@ def minilm_token_encoder(model_dir: str | Path | None = None, max_length: int = 
     bert = AutoModel.from_pretrained(str(root), local_files_only=True)
     return TokenStateEncoder("minilm-tokens", tokenizer, DistilBertTokenStates(bert), int(bert.config.hidden_size),
                              max_length)
+
+
+@dataclass
+class TokenStateCache:
+    """Every caption's token states, stored once: ``states`` [sum of lengths, dim] (float16: half the memory; the
+    trained model reads them as float32), caption i's real tokens at ``offsets[i]:offsets[i + 1]``."""
+
+    encoder: str
+    texts: list[str]
+    offsets: np.ndarray     # int64 [N + 1]
+    states: np.ndarray      # float16 [total tokens, dim]
+
+    def __post_init__(self) -> None:
+        self.index = {text: i for i, text in enumerate(self.texts)}
+
+    @property
+    def dim(self) -> int:
+        return int(self.states.shape[1])
+
+    def batch(self, rows: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        """(text float32 [B, L, dim] zero-padded, text_mask bool [B, L]) of the captions at ``rows`` (L: their
+        longest)."""
+        lengths = [int(self.offsets[r + 1] - self.offsets[r]) for r in rows]
+        text = torch.zeros(len(rows), max(lengths), self.dim)
+        mask = torch.zeros(len(rows), max(lengths), dtype=torch.bool)
+        for b, (row, length) in enumerate(zip(rows, lengths)):
+            start = int(self.offsets[row])
+            text[b, :length] = torch.from_numpy(self.states[start:start + length].astype(np.float32))
+            mask[b, :length] = True
+        return text, mask
+
+
+def cache_token_states(source: object, encoder: TokenStateEncoder, path: str | Path,
+                       batch_size: int = 128) -> TokenStateCache:
+    """Encode every caption of ``source`` (readers or captions, as cache_text_features takes them) once, keeping its
+    real tokens' states; an existing cache of the same encoder is reused and only new captions are encoded."""
+    from tqdm import tqdm
+
+    from t2m.model.networks.text_encoders import collect_captions
+
+    path = Path(path)
+    texts = collect_captions(source)
+    known: dict[str, np.ndarray] = {}
+    if path.is_file():
+        with np.load(path, allow_pickle=False) as stored:
+            if str(stored["encoder"]) == encoder.name and stored["states"].shape[1] == encoder.dim:
+                offsets, states = stored["offsets"], stored["states"]
+                known = {text: states[offsets[i]:offsets[i + 1]] for i, text in enumerate(stored["texts"].tolist())}
+    missing = [t for t in texts if t not in known]
+    if missing:
+        progress = tqdm(total=len(missing), desc=f"token states ({encoder.name})", unit="caption")
+        for start in range(0, len(missing), batch_size):
+            chunk = missing[start:start + batch_size]
+            states, mask = encoder.encode(chunk)
+            for text, row, real in zip(chunk, states, mask):
+                known[text] = row[real].astype(np.float16)
+            progress.update(len(chunk))
+        progress.close()
+        all_texts = list(known)
+        lengths = np.array([len(known[t]) for t in all_texts], np.int64)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as handle:  # a file handle: numpy would append .npz to other names
+            np.savez(handle, texts=np.array(all_texts, dtype=np.str_), offsets=np.append(0, np.cumsum(lengths)),
+                     states=np.concatenate([known[t] for t in all_texts]).astype(np.float16),
+                     encoder=np.array(encoder.name))
+    lengths = np.array([len(known[t]) for t in texts], np.int64)
+    return TokenStateCache(encoder.name, texts, np.append(0, np.cumsum(lengths)),
+                           np.concatenate([known[t] for t in texts]).astype(np.float16))

@@ -62,7 +62,14 @@ def save_checkpoint(run_dir: str | Path, model: nn.Module, step: int, data: dict
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    state = {name: tensor.detach().cpu().contiguous() for name, tensor in model.state_dict().items()}
+    state: dict[str, Any] = {}
+    seen: set[int] = set()
+    for name, tensor in model.state_dict().items():
+        value = tensor.detach().cpu().contiguous()
+        if value.data_ptr() in seen:   # one tensor under two names (MDM's pe table): safetensors wants copies
+            value = value.clone()
+        seen.add(value.data_ptr())
+        state[name] = value
     tmp_weights = run_dir / (WEIGHTS_FILE + ".tmp")
     save_file(state, str(tmp_weights), metadata={"kind": model_kind(model), "step": str(step)})
     tmp_weights.replace(run_dir / WEIGHTS_FILE)

@@ -196,7 +196,7 @@ class CsvLog:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        skip = {"step", "lr", "samples_per_s", "elapsed_s"}
+        skip = {"step", "lr", "samples_per_s", "step_s", "elapsed_s"}
         names = sorted({c.removeprefix("val_") for c in self.columns if c not in skip})
         if not names:
             return
@@ -232,8 +232,10 @@ def run_training(
     data_info: dict[str, Any] | None = None,
     resume: bool = False,
     name: str = "train",
+    after_update: Callable[[ModelT], None] | None = None,
 ) -> int:
-    """Train until settings.steps; returns the last step. Checkpoints at save_every and at the end."""
+    """Train until settings.steps; returns the last step. Checkpoints at save_every and at the end.
+    ``after_update(model)`` runs after each optimiser step (e.g. an EMA copy of the weights following them)."""
     from tqdm import tqdm
 
     run_dir = Path(run_dir)
@@ -245,9 +247,12 @@ def run_training(
     logger = make_logger(run_dir, name)
     log = CsvLog(run_dir / LOG_CSV, resume_step=start if resume else None)
     parameters = sum(p.numel() for p in model.parameters())
+    trained = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    counted = f"{parameters / 1e6:.2f}M parameters" + (
+        f" ({trained:,} trained)" if trained != parameters else "")   # e.g. an EMA copy is not trained
     logger.info(
         f"{name}: {'resuming at' if resume else 'starting at'} step {start} of {settings.steps}; "
-        f"{parameters / 1e6:.2f}M parameters; threads {torch.get_num_threads()}; run dir {run_dir}"
+        f"{counted}; threads {torch.get_num_threads()}; run dir {run_dir}"
     )
 
     def checkpoint(step: int) -> None:
@@ -274,6 +279,8 @@ def run_training(
         if settings.grad_clip:
             torch.nn.utils.clip_grad_norm_(model.parameters(), settings.grad_clip)
         optimizer.step()
+        if after_update is not None:
+            after_update(model)
         train_seconds += time.perf_counter() - step_start
         step += 1
         progress.update(1)
@@ -287,6 +294,7 @@ def run_training(
         if step % settings.log_every == 0 or step == settings.steps:
             row.update({k: round(v / count, 6) for k, v in sums.items()})
             row["samples_per_s"] = round(samples / max(train_seconds, 1e-9), 1)
+            row["step_s"] = round(train_seconds / count, 4)
             progress.set_postfix(loss=f"{row['loss']:.4f}", sps=row["samples_per_s"])
             sums, count, samples, train_seconds = {}, 0, 0, 0.0
         if val_fn is not None and (step % settings.val_every == 0 or step == settings.steps):
