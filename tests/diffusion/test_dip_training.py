@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from t2m.export.families.diffusion_random import TEXT_DIM, TEXT_MAX_LENGTH, TinyTokenEncoder
-from t2m.export.kit.text_sources import served_token_text_source
+from t2m.export.kit.text_sources import token_states_text_source
 from t2m.model.networks.diffusion_text import TokenStateEncoder, cache_token_states
 from t2m.model.training import train_dip
 from tests.model.synthetic_motion_data import CAPTIONS, make_dataset
@@ -125,7 +125,7 @@ def test_the_export_takes_the_ema_weights_and_the_bundle_serves(setup):
     net = load_model(run, expect_kind="dip")
     pairs = zip(net.model_avg.parameters(), net.model.parameters())
     assert max(float((a - p).detach().abs().max()) for a, p in pairs) > 1e-3     # the EMA lags the trained weights
-    manifest, checks = export_dip_from_run(run, root / "bundle", text_source=served_token_text_source(encoder))
+    manifest, checks = export_dip_from_run(run, root / "bundle", text_source=token_states_text_source(encoder))
     assert checks["parity"]["denoiser_max_abs"] < 1e-4
     assert manifest["diffusion"]["context_len"] == 8 and manifest["diffusion"]["pred_len"] == 16
     rng = np.random.default_rng(0)

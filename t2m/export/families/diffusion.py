@@ -145,7 +145,7 @@ def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | Non
     trained on (`text_source` replaces it in tests), the run's mean/std, the standing prefix; returns (manifest,
     checks)."""
     from t2m.export.kit.runs import run_training_data
-    from t2m.export.kit.text_sources import served_token_text_source
+    from t2m.export.kit.text_sources import token_states_text_source
     from t2m.model.networks.diffusion import AveragedMDM
     from t2m.model.networks.diffusion_text import minilm_token_encoder
     from t2m.model.training.checkpoint import load_model, read_run_config
@@ -162,7 +162,7 @@ def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | Non
     if text_source is None:
         if text.get("kind") != "minilm-tokens":
             raise ValueError(f"{run}: trained on {text.get('kind')!r} token states; only minilm-tokens is exported")
-        text_source = served_token_text_source(minilm_token_encoder())
+        text_source = token_states_text_source(minilm_token_encoder())
     mean, std = np.load(run / "mean.npy"), np.load(run / "std.npy")
     training_data = run_training_data(run, data, {}, data_summary)
     training = data.get("training", {})

@@ -7,13 +7,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import torch
-from torch import nn
-
 from t2m.export.graphs.text import export_text_graph, export_tiny_text_encoder, export_token_states_graph
 
 __all__ = ["TextSource", "clip_text_source", "encoder_text_source", "mdm_clip_text_source", "minilm_text_source",
-           "recorded_text_source", "save_text_tokenizer", "served_token_text_source", "tiny_text_source",
+           "recorded_text_source", "save_text_tokenizer", "tiny_text_source",
            "token_states_text_source"]
 
 
@@ -86,32 +83,6 @@ def token_states_text_source(encoder: Any) -> TextSource:
         encoder.save_tokenizer(out_dir / "tokenizer.json")
         ids, mask = encoder.tokenize(["a person walks forward", "someone jumps up and down twice"])
         export_token_states_graph(encoder.export_module(), out_dir / "text_encoder.onnx", ids, mask)
-        return {"kind": encoder.name, "dim": int(encoder.dim), "max_length": int(encoder.max_length),
-                "pooling": "tokens", "normalize": False, "null_condition": "zeros"}
-
-    return TextSource(write, encoder)
-
-
-class _StatesOnly(nn.Module):
-    """A token-state module's states alone (its mask is the attention mask, which the service has)."""
-
-    def __init__(self, module: nn.Module) -> None:
-        super().__init__()
-        self.module = module
-
-    def forward(self, input_ids: torch.Tensor, attention_mask: torch.Tensor) -> torch.Tensor:
-        return self.module(input_ids, attention_mask)[0]
-
-
-def served_token_text_source(encoder: Any) -> TextSource:
-    """A TokenStateEncoder as the diffusion family serves token states (docs/diffusion-family.md): one output
-    ``token_states`` [B, L, Dt] (the service masks each batch's padding from attention_mask itself)."""
-    from t2m.export.graphs.diffusion import export_token_text_graph
-
-    def write(out_dir: Path) -> dict:
-        encoder.save_tokenizer(out_dir / "tokenizer.json")
-        ids, mask = encoder.tokenize(["a person walks forward", "someone jumps up and down twice"])
-        export_token_text_graph(_StatesOnly(encoder.export_module()), out_dir / "text_encoder.onnx", ids, mask)
         return {"kind": encoder.name, "dim": int(encoder.dim), "max_length": int(encoder.max_length),
                 "pooling": "tokens", "normalize": False, "null_condition": "zeros"}
 
