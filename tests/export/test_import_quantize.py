@@ -183,7 +183,8 @@ def test_quantize_any_importers_bundle_close_to_float32(imports, kind, scheme, t
 
 def test_a_wrongly_quantised_graph_fails_the_parity_bounds(imports, tmp_path):
     """The control: the first four int8 weights after the text projection doubled (8-bit values read with the 7-bit
-    scale: one layer's worth) in MoMask's int8 masked graph; the comparison that passes the real quantisation fails it."""
+    scale: one layer's worth) in MoMask's int8 masked graph; the comparison that passes the real quantisation fails
+    it."""
     src = imports["momask"]["int8"][0]
     out = tmp_path / "wrong"
     out.mkdir()

@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["check_tensors", "import_quantized", "load_checked", "load_checkpoint_entries", "load_checkpoint_entry", "load_strict",
-           "read_stat", "require_tensor", "shape_text", "strip_prefix"]
+__all__ = ["check_tensors", "import_quantized", "load_checked", "load_checkpoint_entries", "load_checkpoint_entry",
+           "load_strict", "read_stat", "require_tensor", "shape_text", "strip_prefix"]
 
 log = logging.getLogger(__name__)
 

@@ -64,9 +64,9 @@ def _read_manifest(src: Path) -> dict[str, Any]:
 def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None, scheme: str = "int8",
                     parity: bool = True, runs: int | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """Write `src` with its family's token graphs quantised by `scheme` to `out` (with `parity`, `out` must differ
-    from `src`: the float32 original is what the copy is measured against); returns (the written manifest, the parity report as a dict, or
-    None without `parity`). `version` replaces the manifest's version (a shipped bundle whose outputs change gets a
-    new one)."""
+    from `src`: the float32 original is what the copy is measured against); returns (the written manifest, the parity
+    report as a dict, or None without `parity`). `version` replaces the manifest's version (a shipped bundle whose
+    outputs change gets a new one)."""
     from t2m.export.writing.bundle_parity import PARITY_RUNS, compare_bundles
 
     quantize, label = _quantizer(scheme)
