@@ -95,10 +95,11 @@ def printed_json(stdout: str) -> dict:
     return json.loads(stdout[: stdout.rindex("}") + 1])
 
 
-def check_parity(report: dict, scheme: str, agreement: float | None = None) -> None:
+def check_parity(report: dict, scheme: str, agreement: float | None = None, logits: float | None = None) -> None:
+    bound = LOGIT_BOUND[scheme] if logits is None else logits
     for name, graph in report["graphs"].items():
         assert graph["calls"] > 0, name
-        assert graph["max_abs_logit_diff"] <= LOGIT_BOUND[scheme] * max(1.0, graph["max_abs_logit"]), (name, graph)
+        assert graph["max_abs_logit_diff"] <= bound * max(1.0, graph["max_abs_logit"]), (name, graph)
     assert report["agreement"] >= (AGREEMENT_BOUND[scheme] if agreement is None else agreement), report
 
 
@@ -248,10 +249,17 @@ def test_released_sizes_quantised_import_vs_float32(kind, tmp_path, capsys):
                      f"({100 * report['agreement']:.1f}%), " + ", ".join(
                          f"{name} max |logit diff| {g['max_abs_logit_diff']:.3g} (logits up to "
                          f"{g['max_abs_logit']:.3g})" for name, g in report["graphs"].items()))
-        check_parity(report, scheme, RELEASED_AGREEMENT_BOUND[kind][scheme])
+        check_parity(report, scheme, RELEASED_AGREEMENT_BOUND[scheme], RELEASED_LOGIT_BOUND[scheme])
     with capsys.disabled():
         print("\n" + "\n".join(lines))
 
 
-# released sizes: least token agreement over the 8 seeded 10 s runs (measured: see the slow test's printout)
-RELEASED_AGREEMENT_BOUND = {kind: {"int8": 0.0, "int4": 0.0} for kind in IMPORTERS}
+# Released sizes (measured once, 8 seeded 10 s runs each; docs/serving-released-models.md "Quantised imports"):
+# max |logit diff| / scale: int8 0.043 (T2M-GPT), 0.057 / 0.072 (MoMask residual / masked), 0.104 (MoGenTS's 2D
+# masked graph: three 8-layer stacks over up to 300 tokens, the error grows with depth); int4 0.24 (T2M-GPT), 0.36 /
+# 0.37 (MoMask). Token agreement: int8 62% (T2M-GPT), 38% (MoMask), 50% (MoGenTS); int4 29%, 24%. Random weights
+# give flat logits (largest about 2.5-3 over 512 codes; MoMask and MoGenTS sample among the top 10%), so many draws sit
+# near a class boundary and one changed draw reroutes the rest of the motion; chance agreement is about 2% (1 in 52).
+# Bounds: about twice the worst logit ratio, and agreement well above chance with room below the measured values.
+RELEASED_LOGIT_BOUND = {"int8": 0.2, "int4": 0.75}
+RELEASED_AGREEMENT_BOUND = {"int8": 0.3, "int4": 0.15}

@@ -22,20 +22,12 @@ from typing import Any
 
 import numpy as np
 
+from t2m.export.writing.quantize import REPORT_TEXTS as TEXTS  # the motion captions int8 reports use
+
 __all__ = ["PARITY_RUNS", "BundleParity", "GraphParity", "compare_bundles"]
 
 PARITY_RUNS = 8   # seeded requests per comparison (one sentence each, the bundle's longest segment up to 10 s)
 PARITY_SECONDS = 10.0
-TEXTS = (
-    "a person walks forward and waves with the right hand",
-    "someone jumps up and down twice",
-    "a man sits down slowly on a chair",
-    "the figure runs in a circle, then stops and bows",
-    "she kicks with her left leg",
-    "a person is dancing happily",
-    "walking backwards carefully",
-    "he throws a ball overhand with his right arm",
-)
 
 
 @dataclass
