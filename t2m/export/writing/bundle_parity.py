@@ -119,7 +119,12 @@ def _served_codes(engine: Any, requests: Sequence[Any]) -> list[np.ndarray]:
     """The codes each request's motion was decoded from, flattened (the decoder's input, caught on the way)."""
     seen: list[np.ndarray] = []
     decode = engine.decoder.decode
-    engine.decoder.decode = lambda codes: seen.append(np.asarray(codes).reshape(-1).copy()) or decode(codes)
+
+    def catching(codes: np.ndarray) -> np.ndarray:
+        seen.append(np.asarray(codes).reshape(-1).copy())
+        return decode(codes)
+
+    engine.decoder.decode = catching
     result = []
     try:
         for request in requests:
