@@ -20,7 +20,7 @@ from typing import Any
 
 from t2m.bundle import MANIFEST_NAME
 from t2m.export.kit.checks import INT8_LABEL
-from t2m.export.writing.bundle import check_out_dir, write_bundle
+from t2m.export.writing.bundle import check_out_dir, prepare_out_dir, write_bundle
 
 __all__ = ["FP16_LABEL", "INT4_LABEL", "SCHEMES", "quantize_bundle", "quantize_bundle_gpt", "quantized_graphs"]
 
@@ -82,7 +82,10 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     if parity and out.resolve() == src.resolve():
         raise ValueError("the output must differ from the bundle: the float32 original is what the copy is measured "
                          "against")
-    check_out_dir(out)
+    if out.resolve() == src.resolve():
+        check_out_dir(out)   # in place (no parity run): the files are replaced one by one from the staged copy
+    else:
+        prepare_out_dir(out)   # an earlier bundle there leaves none of its files behind
     names = list(manifest["files"])
     with tempfile.TemporaryDirectory(prefix=f"{scheme}-bundle-") as tmp:
         staged = Path(tmp)
