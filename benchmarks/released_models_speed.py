@@ -3,10 +3,11 @@
 No released weights can be fetched here, so each release is written with random values in its exact file layout by
 the test suite's writers (tests/export/*_release_files.py, t2m_gpt_release_keys.py), imported with the importers
 `t2m import` runs (OpenAI's CLIP ViT-B/32 text tower at full size, random, in OpenAI's TorchScript format from
-tests/model/openai_clip_format.py), and the three bundles are timed by `t2m bench --bundle`'s code
-(t2m.export.bench.bundles: text / codes / decode per request, a 10 s motion and a 3-sentence stream). Speed depends
-on sizes, not values, so these are the figures of the real releases on this machine; the figures are printed, never
-asserted.
+tests/model/openai_clip_format.py), quantised as `t2m import --quantize` / `t2m quantize` quantise them (--schemes:
+each bundle's token graphs as int8, int4, fp16; parity is the slow tests' subject, not measured here), and every
+bundle is timed by `t2m bench --bundle`'s code (t2m.export.bench.bundles: text / codes / decode per request, a 10 s
+motion and a 3-sentence stream), one table per thread count. Speed depends on sizes, not values, so these are the
+figures of the real releases on this machine; the figures are printed, never asserted.
 
 The diffusion family (MDM's paper model with 1000 steps, MDM-50, DiP; tests/export/mdm_release_files.py, DistilBERT
 at distilbert-base-uncased's sizes with the bert-base-uncased vocabulary MiniLM ships, HumanML3D's Mean/Std of the
@@ -17,9 +18,10 @@ call), with the authors' published GPU figures beside them; then the same with d
 (onnxruntime's dynamic quantisation, t2m.export.writing.quantize) and its parity: max |x0 diff| on one call and the
 max |diff| of a whole seeded run with injected noise, float32 vs int8.
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python benchmarks/released_models_speed.py [--repeats 3] [--threads 1]
-        [--workdir DIR]   (keep the releases and bundles there; bundles already there are reused)
-        [--models mdm-1000,mdm-50,dip]   (a subset; default all six)
+    OMP_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python benchmarks/released_models_speed.py [--repeats 3] [--threads 1 2]
+        [--schemes float32,int8,int4] [--workdir DIR]   (keep the releases and bundles there; bundles already there
+        are reused) [--models mdm-1000,mdm-50,dip]   (a subset; default all six; --schemes applies to the three
+        token-model releases)
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ import argparse
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import torch
@@ -128,10 +130,13 @@ def folder_mb(folder: Path) -> float:
     return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) / 1e6
 
 
-def build_bundles(workdir: Path, models: list[str]) -> list[Path]:
-    """One bundle per release in workdir/bundles (reused when already there); prints how long each import took."""
+def build_bundles(workdir: Path, models: Sequence[str], schemes: Sequence[str] = ("float32",)) -> dict[str, Path]:
+    """One bundle per release (and, for the token models, per scheme) in workdir/bundles (reused when already there),
+    {row label: folder}; prints how long each import and quantisation took."""
+    from t2m.export.writing.int8 import quantize_bundle
+
     clip = write_clip(workdir / "clip")
-    bundles = []
+    bundles = {}
     for name in models:
         run_import = IMPORTS[name]
         out = workdir / "bundles" / name
@@ -140,14 +145,24 @@ def build_bundles(workdir: Path, models: list[str]) -> list[Path]:
             run_import(workdir / "releases" / name, clip, out)
             print(f"- {name}: written and imported in {time.perf_counter() - start:.0f} s, bundle "
                   f"{folder_mb(out):.0f} MB", flush=True)
-        bundles.append(out)
+        for scheme in schemes if name not in DIFFUSION else ("float32",):
+            copy = out if scheme == "float32" else workdir / "bundles" / f"{name}-{scheme}"
+            if not (copy / "manifest.json").is_file():
+                start = time.perf_counter()
+                quantize_bundle(out, copy, scheme=scheme, parity=False)
+                print(f"- {name} {scheme}: quantised in {time.perf_counter() - start:.0f} s, bundle "
+                      f"{folder_mb(copy):.0f} MB", flush=True)
+            bundles[f"{name} {scheme}"] = copy
     return bundles
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3, help="requests timed per case and model (default 3)")
-    parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads (default 1)")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1],
+                        help="onnxruntime intra-op threads, one table each (default 1)")
+    parser.add_argument("--schemes", default="float32",
+                        help="comma-separated: float32 (the import) and quantised copies int8, int4, fp16")
     parser.add_argument("--workdir", type=Path, default=None,
                         help="keep releases and bundles here (default: a temporary folder, removed at the end)")
     parser.add_argument("--models", default=",".join(IMPORTS),
@@ -159,17 +174,21 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(models) - set(IMPORTS))
     if unknown:
         parser.error(f"--models: unknown {', '.join(unknown)} (known: {', '.join(IMPORTS)})")
-    if args.repeats < 1 or args.threads < 1:
+    schemes = [scheme.strip() for scheme in args.schemes.split(",") if scheme.strip()]
+    if args.repeats < 1 or min(args.threads) < 1:
         parser.error("--repeats and --threads must be >= 1")
-    torch.set_num_threads(args.threads)
+    if not schemes or set(schemes) - {"float32", "int8", "int4", "fp16"}:
+        parser.error(f"--schemes: float32, int8, int4 or fp16, got {args.schemes!r}")
+    torch.set_num_threads(max(args.threads))
     with tempfile.TemporaryDirectory(prefix="released-speed-") as temporary:
         workdir = args.workdir or Path(temporary)
-        bundles = build_bundles(workdir, models)
-        print()
-        tokens = [bundle for name, bundle in zip(models, bundles) if name not in DIFFUSION]
-        if tokens:
-            run_bundle_bench(tokens, repeats=args.repeats, threads=args.threads)
-        diffusion = {name: bundle for name, bundle in zip(models, bundles) if name in DIFFUSION}
+        bundles = build_bundles(workdir, models, schemes)
+        tokens = {label: bundle for label, bundle in bundles.items() if label.split(" ")[0] not in DIFFUSION}
+        for threads in args.threads if tokens else ():
+            print()
+            run_bundle_bench(list(tokens.values()), repeats=args.repeats, threads=threads, names=list(tokens))
+        diffusion = {label.split(" ")[0]: bundle for label, bundle in bundles.items()
+                     if label.split(" ")[0] in DIFFUSION}
         if diffusion:
             from t2m.export.bench.diffusion_speed import run_diffusion_speed
 

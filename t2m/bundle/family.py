@@ -137,6 +137,13 @@ class ModelFamily:
         """`t2m export --family NAME`'s own options (their dests must not collide with another family's)."""
 
     int8_graphs: ClassVar[frozenset[str]] = frozenset()               # what `t2m export --int8` may name
+
+    def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """The graph files of a bundle that `t2m quantize` and `t2m import --quantize` rewrite (int8, int4, fp16):
+        the token graphs, whose MatMul weights carry the per-step cost; each one's manifest key is
+        `quantization.<file stem>`. The text encoder (run once per request; `t2m export --int8 text` is its
+        option), the decoder and the length graph are not among them. None: the family has nothing to quantise."""
+        return ()
     export_needs_vq: ClassVar[bool] = False                           # `t2m export` refuses it without --vq RUN
 
     def export(self, args: argparse.Namespace, int8: Any) -> tuple[dict, dict]:

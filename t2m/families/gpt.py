@@ -87,6 +87,9 @@ class GptFamily(ModelFamily):
     def required_files(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         return REQUIRED_FILES
 
+    def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        return ("gpt_step.onnx",)
+
     def graphs(self, manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
         gpt = manifest["gpt"]
         kv = kv_shape(gpt["n_layer"], gpt)

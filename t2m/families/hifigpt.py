@@ -78,6 +78,9 @@ class HiFiGPTFamily(ModelFamily):
     def required_files(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         return (*COMMON_FILES[:2], *HIFIGPT_GRAPHS, *COMMON_FILES[2:])
 
+    def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        return HIFIGPT_GRAPHS
+
     def graphs(self, manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
         """temporal_step.onnx and residual_step.onnx (each with its own KV cache), decoder.onnx over [B, T, R]."""
         block, dim, depth = manifest["hifigpt"], manifest["text_encoder"]["dim"], manifest["residual_layers"]

@@ -23,6 +23,7 @@ from t2m.bundle.manifest import (
     MANIFEST_NAME,
     POSITIVE,
     QUANTIZATION,
+    check_fields,
     is_int,
     is_number,
     is_optional_positive,
@@ -190,6 +191,10 @@ class MaskedFamily(ModelFamily):
         masked = manifest["masked"]
         _check_token_ids(masked, "masked", manifest["codebook_size"])
         _check_branches(manifest)
+        # each branch's graphs may be quantised too: `quantization.masked_<name>`, `quantization.residual_<name>`
+        check_fields(manifest, {f"quantization.{Path(graph).stem}": QUANTIZATION
+                                for branch in masked.get("branches") or [] if isinstance(branch, Mapping)
+                                for graph in branch_graphs(str(branch.get("name")))}, required=False)
         if masked["length_estimator"] and LENGTH_GRAPH not in manifest["files"]:
             raise BundleError(f"{MANIFEST_NAME}: field 'masked.length_estimator' is true but 'files' does not list "
                               f"{LENGTH_GRAPH!r}")
@@ -207,6 +212,12 @@ class MaskedFamily(ModelFamily):
         if masked["length_estimator"]:
             names.append(LENGTH_GRAPH)
         return (*names, "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md")
+
+    def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """Every generator's token graphs (masked.onnx, residual.onnx, each branch's pair); not length.onnx (a small
+        MLP run once per request) nor the decoder."""
+        return tuple(name for name in self.required_files(manifest)
+                     if name.endswith(".onnx") and name.startswith(("masked", "residual")))
 
     def graphs(self, manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
         """masked.onnx, residual.onnx (R > 1), each branch's pair, length.onnx (with an estimator), decoder.onnx over

@@ -94,10 +94,13 @@ def describe(engine: OnnxEngine) -> str:
 
 
 def run_bundle_bench(bundles: Sequence[Path], repeats: int = 5, threads: int | None = None,
-                     echo: Callable[[str], None] = print) -> dict[str, dict[str, StageTimes]]:
-    """Load every bundle, time both cases on each, print one markdown table; returns {model: {case: times}}."""
+                     echo: Callable[[str], None] = print,
+                     names: Sequence[str] | None = None) -> dict[str, dict[str, StageTimes]]:
+    """Load every bundle, time both cases on each, print one markdown table; returns {model: {case: times}}.
+    `names` labels the rows (default: each manifest's name; e.g. a float32 bundle and its quantised copies)."""
     threads = threads or os.cpu_count() or 1
     engines = [OnnxEngine.load(path, intra_op_threads=threads) for path in bundles]
+    labels = list(names) if names is not None else [engine.limits.name for engine in engines]
     echo(f"## t2m bench --bundle ({len(engines)} models, median of {repeats} requests each, batch 1)")
     echo("")
     for line in describe_machine(threads):
@@ -107,8 +110,7 @@ def run_bundle_bench(bundles: Sequence[Path], repeats: int = 5, threads: int | N
          "| ms CPU |")
     echo("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     results: dict[str, dict[str, StageTimes]] = {}
-    for engine in engines:
-        name = engine.limits.name
+    for engine, name in zip(engines, labels):
         results[name] = {}
         for label, segments in CASES.items():
             times = bench_engine(engine, segments, repeats)

@@ -44,6 +44,7 @@ class ExportChecks:
 
     parity: dict[str, Any] = field(default_factory=dict)
     int8: dict[str, Any] = field(default_factory=dict)
+    quantization: dict[str, Any] | None = None   # the import's --quantize report (t2m.export.writing.int8)
 
     def model_card_section(self) -> str:
         lines: list[str] = []

@@ -100,6 +100,7 @@ class MaskedExportChecks:
 
     parity: dict[str, Any] = field(default_factory=dict)
     int8: dict[str, Any] = field(default_factory=dict)
+    quantization: dict[str, Any] | None = None   # the import's --quantize report (t2m.export.writing.int8)
 
     def model_card_section(self) -> str:
         int8 = self._int8_lines()

@@ -5,16 +5,17 @@ from __future__ import annotations
 
 import logging
 import pickle
-from collections.abc import Mapping
+import tempfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["check_tensors", "load_checked", "load_checkpoint_entries", "load_checkpoint_entry", "load_strict",
-           "read_stat", "read_torch_file", "require_tensor", "shape_text", "strip_prefix"]
+__all__ = ["check_tensors", "import_quantized", "load_checked", "load_checkpoint_entries", "load_checkpoint_entry",
+           "load_strict", "read_stat", "read_torch_file", "require_tensor", "shape_text", "strip_prefix"]
 
 log = logging.getLogger(__name__)
 
@@ -134,3 +135,35 @@ def read_stat(path: Path, feat_dim: int, what: str = "the VQ's features") -> np.
     if array.shape != (feat_dim,):
         raise ValueError(f"{path}: expected [{feat_dim}] values ({what}), got {list(array.shape)}")
     return array
+
+
+class _Checks(Protocol):
+    quantization: dict[str, Any] | None
+
+
+ChecksT = TypeVar("ChecksT", bound=_Checks)
+
+
+def import_quantized(out_dir: str | Path, quantize: str | None,
+                     write: Callable[[Path], tuple[dict, ChecksT]]) -> tuple[dict, ChecksT]:
+    """An import, quantised (`--quantize int8|int4|fp16`) when asked: `write(folder)` imports float32 there (into
+    `out_dir` itself without `quantize`); with `quantize`, into a scratch folder beside `out_dir`, from which
+    t2m.export.writing.int8.quantize_bundle writes the quantised bundle to `out_dir`, measured against the float32
+    import and said in its card; the checks' `quantization` gets that report."""
+    from t2m.export.writing.bundle import check_out_dir
+    from t2m.export.writing.int8 import SCHEMES, quantize_bundle
+
+    out_dir = Path(out_dir)
+    if quantize is None:
+        return write(out_dir)
+    if quantize not in SCHEMES:
+        raise ValueError(f"--quantize must be one of {', '.join(SCHEMES)}, got {quantize!r}")
+    check_out_dir(out_dir)   # refused before the slow import
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{out_dir.name}-float32-", dir=out_dir.parent) as scratch:
+        float32 = Path(scratch) / "bundle"
+        _, checks = write(float32)
+        log.info("quantising the imported graphs (%s) and measuring them against float32", quantize)
+        manifest, report = quantize_bundle(float32, out_dir, scheme=quantize)
+    checks.quantization = report
+    return manifest, checks

@@ -26,7 +26,7 @@ from typing import Any
 import torch
 
 from t2m.export.families.masked import MaskedDecoding, MaskedExportChecks, TokenBranch, export_masked_bundle
-from t2m.export.importers.kit import load_checked, read_stat, require_tensor, shape_text
+from t2m.export.importers.kit import import_quantized, load_checked, read_stat, require_tensor, shape_text
 from t2m.export.importers.mogents_card import release_notes
 from t2m.export.importers.mogents_files import ImportedMogents, locate_release, read_states
 from t2m.export.importers.momask import (
@@ -166,8 +166,18 @@ def import_mogents(
     version: str = "1.0.0",
     check_parity: bool = True,
     allow_pickle: bool = False,
+    quantize: str | None = None,
 ) -> tuple[dict, MaskedExportChecks]:
-    """The whole import: the release's files -> our modules -> a verified masked bundle with two generators."""
+    """The whole import: the release's files -> our modules -> a verified masked bundle with two generators (their
+    token graphs quantised with ``quantize``: int8, int4 or fp16; kit.import_quantized)."""
+    return import_quantized(out_dir, quantize, lambda out: _import_mogents(
+        logs_dir, out, clip_weights=clip_weights, files=files, heads=heads, name=name, version=version,
+        check_parity=check_parity, allow_pickle=allow_pickle))
+
+
+def _import_mogents(logs_dir: str | Path | None, out_dir: Path, *, clip_weights: str | Path | None,
+                    files: Mapping[str, str | Path | None] | None, heads: int, name: str | None, version: str,
+                    check_parity: bool, allow_pickle: bool) -> tuple[dict, MaskedExportChecks]:
     located = locate_release(logs_dir, files or {})
     text_source, models = read_release(clip_weights, CLIP_REQUIRED, located,
                                        lambda: load_mogents(located, heads, allow_pickle))

@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 import torch
 
 from t2m.export.families.masked import MaskedDecoding, MaskedExportChecks, export_masked_bundle
-from t2m.export.importers.kit import load_checked, read_stat, require_tensor, shape_text
+from t2m.export.importers.kit import import_quantized, load_checked, read_stat, require_tensor, shape_text
 from t2m.export.importers.momask_card import release_notes
 from t2m.export.importers.momask_files import (
     ImportedMomask,
@@ -217,8 +217,18 @@ def import_momask(
     version: str = "1.0.0",
     check_parity: bool = True,
     allow_pickle: bool = False,
+    quantize: str | None = None,
 ) -> tuple[dict, MaskedExportChecks]:
-    """The whole import: the release's files -> our modules -> a verified masked bundle with the release's settings."""
+    """The whole import: the release's files -> our modules -> a verified masked bundle with the release's settings
+    (its token graphs quantised with ``quantize``: int8, int4 or fp16; kit.import_quantized)."""
+    return import_quantized(out_dir, quantize, lambda out: _import_momask(
+        checkpoints_dir, out, clip_weights=clip_weights, files=files, heads=heads, name=name, version=version,
+        check_parity=check_parity, allow_pickle=allow_pickle))
+
+
+def _import_momask(checkpoints_dir: str | Path | None, out_dir: Path, *, clip_weights: str | Path | None,
+                   files: Mapping[str, str | Path | None] | None, heads: int, name: str | None, version: str,
+                   check_parity: bool, allow_pickle: bool) -> tuple[dict, MaskedExportChecks]:
     located = locate_release(checkpoints_dir, files or {})
     text_source, models = read_release(clip_weights, CLIP_REQUIRED, located,
                                        lambda: load_momask(located, heads, allow_pickle))

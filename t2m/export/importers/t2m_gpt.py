@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from t2m.export.families.gpt import ExportChecks, export_bundle
-from t2m.export.importers.kit import load_checkpoint_entry, load_strict, strip_prefix
+from t2m.export.importers.kit import import_quantized, load_checkpoint_entry, load_strict, strip_prefix
 from t2m.export.kit.text_sources import TextSource, clip_text_source
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
@@ -192,10 +192,15 @@ def import_t2m_gpt(
     license: str = RELEASE_LICENSE,
     check_parity: bool = True,
     allow_pickle: bool = False,
+    quantize: str | None = None,
 ) -> tuple[dict, ExportChecks]:
-    """The whole import: checkpoints -> our modules -> a verified bundle (guidance off, no unconditional branch)."""
+    """The whole import: checkpoints -> our modules -> a verified bundle (guidance off, no unconditional branch);
+    the step graph quantised with ``quantize`` (int8, int4 or fp16; kit.import_quantized), or int8 with ``int8``."""
     if clip_weights is not None and text_encoder_bundle is not None:
         raise ValueError("pass either --clip or --text-encoder-bundle, not both")
+    if quantize is not None and int8 in ("gpt", "all"):
+        raise ValueError(f"--int8 {int8} and --quantize {quantize} both quantise the step graph: pass one (--int8 "
+                         "text goes with --quantize)")
     # the text encoder first: a wrong CLIP file is refused before the slow checkpoint loads
     if clip_weights is not None:
         text_source = clip_text_source(clip_weights)
@@ -213,9 +218,9 @@ def import_t2m_gpt(
         "Text features: OpenAI's CLIP ViT-B/32 encode_text (QuickGELU, features at the end token), float32, not"
         " normalised, on OpenAI's tokenization (the reference recipe).\n"
     )
-    return export_bundle(
-        out_dir, vq=models.vq, gpt=models.gpt, mean=models.mean, std=models.std, text_source=text_source,
+    return import_quantized(out_dir, quantize, lambda out: export_bundle(
+        out, vq=models.vq, gpt=models.gpt, mean=models.mean, std=models.std, text_source=text_source,
         name=name, version=version, unconditional_branch=False, default_guidance=1.0,
         training_data=dict(training_data or RELEASE_TRAINING_DATA), license=license, int8=int8, notes=notes,
         check_parity=check_parity,
-    )
+    ))

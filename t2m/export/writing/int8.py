@@ -1,14 +1,17 @@
-"""A copy of a GPT bundle with a quantised step graph: gpt_step.onnx as int8 (dynamic, 7-bit weights; the shipped
-rule) or int4 (MatMulNBits weights, int8 compute; opt-in, for release-size models bound by memory bandwidth), the
-manifest's `quantization.gpt_step` and files table rewritten by write_bundle, so the copy is verified like any
-exported bundle.
+"""A copy of a bundle with its token graphs quantised, for every family (the family seam's `quantizable_graphs`):
+int8 (dynamic, 7-bit weights: MatMulInteger; the shipped rule), int4 (MatMulNBits weights, int8 compute; opt-in, for
+release-size models bound by memory bandwidth) or fp16 (float16 weights and compute, float32 inputs and outputs; for
+GPUs). The manifest's `quantization.<graph>` entries and files table are rewritten by write_bundle, so the copy is
+verified like any exported bundle, and the copy's model card says what was quantised and what it cost, measured
+against the float32 original as served (t2m.export.writing.bundle_parity).
 
-Used to measure a quantised step graph as served (`t2m eval --bundle`, the probes) before shipping it, to ship it,
-and by `t2m quantize` for any GPT-family bundle (an imported T2M-GPT release included).
+Used to measure a quantised bundle as served (`t2m eval --bundle`, the probes) before shipping it, to ship it, by
+`t2m quantize` for any family's bundle (an imported release included) and by `t2m import ... --quantize`.
 """
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -17,49 +20,129 @@ from typing import Any
 
 from t2m.bundle import MANIFEST_NAME
 from t2m.export.kit.checks import INT8_LABEL
-from t2m.export.writing.bundle import check_out_dir, write_bundle
+from t2m.export.writing.bundle import check_out_dir, prepare_out_dir, write_bundle
 
-__all__ = ["INT4_LABEL", "SCHEMES", "quantize_bundle_gpt"]
+__all__ = ["FP16_LABEL", "INT4_LABEL", "SCHEMES", "quantize_bundle", "quantize_bundle_gpt", "quantized_graphs"]
 
 INT4_LABEL = "int4-matmulnbits"
-SCHEMES = ("int8", "int4")
+FP16_LABEL = "fp16"
+SCHEMES = ("int8", "int4", "fp16")
+WHAT = {
+    INT8_LABEL: "int8 MatMul/Gemm weights (per channel, 7 bits) and embedding tables, activations quantised on the "
+                "fly (MatMulInteger)",
+    INT4_LABEL: "int4 MatMul weights in blocks of 128 with int8 compute (MatMulNBits)",
+    FP16_LABEL: "float16 weights and compute, float32 inputs and outputs (for GPUs; op types onnxruntime's "
+                "converter blocks stay float32)",
+}
 
 
 def _quantizer(scheme: str) -> tuple[Callable[[Path, Path], Path], str]:
-    from t2m.export.writing.quantize import quantize_graph, quantize_graph_int4
+    from t2m.export.writing.quantize import convert_graph_fp16, quantize_graph, quantize_graph_int4
 
     if scheme == "int8":
         return quantize_graph, INT8_LABEL
     if scheme == "int4":
         return quantize_graph_int4, INT4_LABEL
+    if scheme == "fp16":
+        return convert_graph_fp16, FP16_LABEL
     raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
 
 
-def quantize_bundle_gpt(src: str | Path, out: str | Path, version: str | None = None,
-                        scheme: str = "int8") -> dict[str, Any]:
-    """Write `src` with a quantised gpt_step.onnx to `out` (may equal `src`); returns the written manifest.
+def quantized_graphs(manifest: dict[str, Any]) -> tuple[str, ...]:
+    """The graph files of this manifest's family that a quantisation rewrites (none: the family has none)."""
+    from t2m.bundle import family_of, get_family
 
-    `version` replaces the manifest's version (a shipped bundle whose outputs change gets a new one)."""
-    quantize, label = _quantizer(scheme)
-    src, out = Path(src), Path(out)
+    return get_family(family_of(manifest)).quantizable_graphs(manifest)
+
+
+def _read_manifest(src: Path) -> dict[str, Any]:
     if not (src / MANIFEST_NAME).is_file():
         raise ValueError(f"{src}: no {MANIFEST_NAME} (not a bundle directory)")
-    manifest = json.loads((src / MANIFEST_NAME).read_text(encoding="utf-8"))
-    if manifest.get("family", "gpt") != "gpt":
-        raise ValueError(f"{src}: only GPT-family bundles have gpt_step.onnx (this one is {manifest['family']!r})")
-    if (manifest.get("quantization") or {}).get("gpt_step"):
-        raise ValueError(f"{src}: gpt_step.onnx is already {manifest['quantization']['gpt_step']}")
+    return json.loads((src / MANIFEST_NAME).read_text(encoding="utf-8"))
+
+
+def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None, scheme: str = "int8",
+                    parity: bool = True, runs: int | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Write `src` with its family's token graphs quantised by `scheme` to `out` (with `parity`, `out` must differ
+    from `src`: the float32 original is what the copy is measured against); returns (the written manifest, the parity
+    report as a dict, or None without `parity`). `version` replaces the manifest's version (a shipped bundle whose
+    outputs change gets a new one)."""
+    from t2m.export.writing.bundle_parity import PARITY_RUNS, compare_bundles
+
+    quantize, label = _quantizer(scheme)
+    src, out = Path(src), Path(out)
+    manifest = _read_manifest(src)
+    graphs = quantized_graphs(manifest)
+    if not graphs:
+        raise ValueError(f"{src}: family {manifest.get('family', 'gpt')!r} declares no graphs to quantise")
+    done = {name: (manifest.get("quantization") or {}).get(Path(name).stem) for name in graphs}
+    if any(done.values()):
+        name, already = next((name, value) for name, value in done.items() if value)
+        raise ValueError(f"{src}: {name} is already {already}")
+    if parity and out.resolve() == src.resolve():
+        raise ValueError("the output must differ from the bundle: the float32 original is what the copy is measured "
+                         "against")
+    if out.resolve() == src.resolve():
+        check_out_dir(out)   # in place (no parity run): the files are replaced one by one from the staged copy
+    else:
+        prepare_out_dir(out)   # an earlier bundle there leaves none of its files behind
     names = list(manifest["files"])
     with tempfile.TemporaryDirectory(prefix=f"{scheme}-bundle-") as tmp:
         staged = Path(tmp)
         for name in names:
             (staged / name).parent.mkdir(parents=True, exist_ok=True)
-            if name == "gpt_step.onnx":
+            if name in graphs:
                 quantize(src / name, staged / name)
             else:
                 shutil.copyfile(src / name, staged / name)
-        manifest["quantization"] = {**(manifest.get("quantization") or {}), "gpt_step": label}
+        manifest["quantization"] = {**(manifest.get("quantization") or {}),
+                                    **{Path(name).stem: label for name in graphs}}
         if version is not None:
             manifest["version"] = version
-        check_out_dir(out)
-        return write_bundle(out, {name: staged / name for name in names}, manifest)
+        written = write_bundle(out, {name: staged / name for name in names}, manifest)
+    if not parity:
+        return written, None
+    report = compare_bundles(src, out, graphs, runs=PARITY_RUNS if runs is None else runs)
+    sizes = {name: ((src / name).stat().st_size, (out / name).stat().st_size) for name in graphs}
+    card = out / "MODEL_CARD.md"
+    if card.is_file():
+        text = _quantisation_row(card.read_text(encoding="utf-8"), written)
+        card.write_text(f"{text.rstrip()}\n\n{card_section(label, report.as_dict(), sizes)}", encoding="utf-8")
+        written = write_bundle(out, {name: out / name for name in names}, written)
+    return written, {**report.as_dict(), "scheme": label,
+                     "bytes": {name: {"float32": a, label: b} for name, (a, b) in sizes.items()}}
+
+
+def _quantisation_row(card: str, manifest: dict[str, Any]) -> str:
+    """The card's `| quantisation | ... |` row (the GPT family's table has one) made true for the copy."""
+    quant = manifest.get("quantization") or {}
+    row = "| quantisation | " + "; ".join(f"{key.replace('_', ' ')}: {value or 'float32'}"
+                                          for key, value in quant.items()) + " |"
+    return re.sub(r"^\| quantisation \|.*\|$", lambda _: row, card, flags=re.MULTILINE)
+
+
+def card_section(label: str, report: dict[str, Any], sizes: dict[str, tuple[int, int]]) -> str:
+    """The model card's section on a quantised copy: what was quantised, how, and its measured parity."""
+    lines = [f"## Quantisation: {label} (vs the float32 bundle)", "",
+             f"Quantised graphs: {', '.join(f'`{name}`' for name in sizes)}: {WHAT[label]}. The text encoder, the "
+             "decoder and any length graph stay float32 (run once per request, not per step; the text features "
+             "condition every token).", "",
+             f"Measured as served, on {report['runs']} seeded one-sentence requests of {report['seconds']:g} s at the "
+             f"bundle's default settings (sampling as served): {report['agreeing']} of {report['tokens']} tokens the "
+             f"same as the float32 bundle's ({100 * report['agreement']:.1f}%; once one draw differs, the rest of "
+             "that motion may take another path).", ""]
+    for name, (before, after) in sizes.items():
+        g = report["graphs"][name]
+        lines.append(f"- `{name}`: max |logit diff| {g['max_abs_logit_diff']:.3g} on the float32 trajectory "
+                     f"({g['calls']} calls; float32 logits up to {g['max_abs_logit']:.3g}); {before / 1e6:.1f} -> "
+                     f"{after / 1e6:.1f} MB")
+    return "\n".join(lines) + "\n"
+
+
+def quantize_bundle_gpt(src: str | Path, out: str | Path, version: str | None = None,
+                        scheme: str = "int8") -> dict[str, Any]:
+    """A GPT-family bundle's quantised copy (quantize_bundle without the parity run); returns the written manifest."""
+    manifest = _read_manifest(Path(src))
+    if manifest.get("family", "gpt") != "gpt":
+        raise ValueError(f"{src}: only GPT-family bundles have gpt_step.onnx (this one is {manifest['family']!r})")
+    return quantize_bundle(src, out, version=version, scheme=scheme, parity=False)[0]

@@ -189,3 +189,26 @@ def text_int8_report(fp32_path: str | Path, int8_path: str | Path, tokenizer_pat
         fp32_ms_per_batch=1000 * times[0], int8_ms_per_batch=1000 * times[1],
         fp32_bytes=Path(fp32_path).stat().st_size, int8_bytes=Path(int8_path).stat().st_size,
     )
+
+
+# Op types kept float32 in an fp16 graph: onnxruntime.transformers.float16's default block list (ops without float16
+# kernels on CPU or CUDA, or numerically unsafe in half precision) plus what our graphs need on top (FP16_EXTRA_BLOCK).
+FP16_EXTRA_BLOCK: tuple[str, ...] = ()
+
+
+def convert_graph_fp16(src: str | Path, dst: str | Path) -> Path:
+    """Write a float16 copy of ``src``: weights and compute in half precision, the graph's float32 inputs and outputs
+    kept (Cast nodes at the edges), so a bundle's contract and the served loop are unchanged.
+
+    Meant for GPUs (CUDA runs float16 MatMuls on tensor cores); onnxruntime's CPU provider runs it too, often slower
+    than float32, which is how its parity is measured here. Op types in onnxruntime's default block list (and
+    FP16_EXTRA_BLOCK) stay float32."""
+    import onnx
+    from onnxruntime.transformers.float16 import DEFAULT_OP_BLOCK_LIST, convert_float_to_float16
+
+    model = onnx.load(str(src))
+    with _quiet_logging("", "onnxruntime.transformers.float16"):
+        converted = convert_float_to_float16(model, keep_io_types=True,
+                                             op_block_list=[*DEFAULT_OP_BLOCK_LIST, *FP16_EXTRA_BLOCK])
+    onnx.save(converted, str(dst))
+    return Path(dst)
