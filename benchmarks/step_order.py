@@ -4,7 +4,9 @@ batching, one stepping every cohort at every step boundary (T2M_STEP_ORDER=every
 phases so that both see the same machine.
 
 Phases, each against both servers in every round (order before, after, then after, before, ...):
-  short alone  one probe client sends a 2 s one-sentence request, waits for the answer, pauses --probe-pause-ms, again
+  short alone  a probe sends a 2 s one-sentence request every --probe-interval-ms (200), whether or not the last one
+               was answered (open loop: the short work offered is the same in both servers, so what the long requests
+               lose is the order's doing, not a faster probe asking for more)
   long alone   --long-clients send 30 s three-sentence requests (3 x 10 s) back to back
   mixed        both at once: the probe's latency under the long load, and the long load's answers/s beside the probe
   sixteen      --clients (16) send 10 s one-sentence requests back to back
@@ -51,22 +53,31 @@ def _body(rng: random.Random, kind: str) -> dict:
 
 
 async def _client(client: httpx.AsyncClient, url: str, make_body: Callable[[], dict], result: PhaseResult,
-                  deadline: float, pause_s: float) -> None:
-    """One user: a request, then (after `pause_s`) the next, until the deadline."""
+                  deadline: float, pause_s: float = 0.0) -> None:
+    """One user: a request, then the next as soon as it is answered, until the deadline."""
     while time.monotonic() < deadline:
         response = await post_and_record(client, url, make_body(), result)
         if response is not None and response.status_code == 429:
             await asyncio.sleep(float(response.headers.get("Retry-After", "1") or 1))
-        await asyncio.sleep(pause_s)
 
 
-async def run_phase(url: str, phase: str, seconds: float, *, long_clients: int, clients: int, probe_pause_s: float,
+async def _probe(client: httpx.AsyncClient, url: str, make_body: Callable[[], dict], result: PhaseResult,
+                 deadline: float, interval_s: float) -> None:
+    """Open loop: a request every `interval_s` until the deadline, each timed on its own; all awaited at the end."""
+    sent = []
+    while time.monotonic() < deadline:
+        sent.append(asyncio.create_task(post_and_record(client, url, make_body(), result)))
+        await asyncio.sleep(interval_s)
+    await asyncio.gather(*sent)
+
+
+async def run_phase(url: str, phase: str, seconds: float, *, long_clients: int, clients: int, probe_interval_s: float,
                     seed: int) -> dict[str, PhaseResult]:
     """One phase against `url`: per request kind its PhaseResult (requests in flight at the deadline are awaited)."""
     require_loopback(url)
-    users: dict[str, tuple[int, float]] = {   # kind -> (clients, pause between requests)
-        "short alone": {"short": (1, probe_pause_s)}, "long alone": {"long": (long_clients, 0.0)},
-        "mixed": {"short": (1, probe_pause_s), "long": (long_clients, 0.0)}, "sixteen": {"ten": (clients, 0.0)},
+    users: dict[str, tuple[int, float]] = {   # kind -> (clients, 0 = back to back, else the probe's interval)
+        "short alone": {"short": (1, probe_interval_s)}, "long alone": {"long": (long_clients, 0.0)},
+        "mixed": {"short": (1, probe_interval_s), "long": (long_clients, 0.0)}, "sixteen": {"ten": (clients, 0.0)},
     }[phase]
     results = {kind: PhaseResult(name=kind, clients=n, seconds=seconds) for kind, (n, _) in users.items()}
     total = sum(n for n, _ in users.values())
@@ -78,7 +89,8 @@ async def run_phase(url: str, phase: str, seconds: float, *, long_clients: int, 
         for k, (kind, (n, pause)) in enumerate(users.items()):
             for i in range(n):
                 make_body = functools.partial(_body, random.Random(seed * 10_000 + k * 1000 + i), kind)
-                tasks.append(_client(client, url, make_body, results[kind], deadline, pause))
+                user = _probe if pause else _client
+                tasks.append(user(client, url, make_body, results[kind], deadline, pause))
         await asyncio.gather(*tasks)
         for result in results.values():
             result.seconds = time.monotonic() - started
@@ -135,9 +147,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--phases", default=",".join(PHASES))
     parser.add_argument("--long-clients", type=int, default=3, help="clients sending 30 s three-sentence requests")
     parser.add_argument("--clients", type=int, default=16, help="sixteen: concurrent clients")
-    parser.add_argument("--probe-pause-ms", type=float, default=100.0, help="the probe's pause between requests")
+    parser.add_argument("--probe-interval-ms", type=float, default=200.0, help="the probe sends one request this often")
     parser.add_argument("--intra-op-threads", type=int, default=1, help="the servers' T2M_INTRA_OP_THREADS")
-    parser.add_argument("--max-step-skips", type=int, default=1, help="the 'after' server's T2M_MAX_STEP_SKIPS")
+    parser.add_argument("--max-step-skips", type=int, default=None,
+                        help="the 'after' server's T2M_MAX_STEP_SKIPS (default: the setting's default)")
     parser.add_argument("--before-code", help="a checkout of an older commit: the 'before' server runs its code "
                                               "(with its own defaults) instead of this one's every-cohort order")
     parser.add_argument("--startup-timeout", type=float, default=900.0, help="seconds a server may take to load")
@@ -149,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                  (("--clients", args.clients), ("--long-clients", args.long_clients)) if not 1 <= value <= MAX_CLIENTS]
     problems += [] if 0 < args.seconds <= MAX_SECONDS else [f"--seconds: outside (0, {MAX_SECONDS:g}]"]
     problems += [] if 1 <= args.rounds <= MAX_ROUNDS else [f"--rounds: outside 1..{MAX_ROUNDS}"]
-    problems += [] if 0 <= args.probe_pause_ms <= 10_000 else ["--probe-pause-ms: outside 0..10000"]
+    problems += [] if 20 <= args.probe_interval_ms <= 10_000 else ["--probe-interval-ms: outside 20..10000"]
     if problems:
         print(f"step_order: error: {'; '.join(problems)}", file=sys.stderr)
         return 2
@@ -162,8 +175,9 @@ def main(argv: list[str] | None = None) -> int:
     model = str(Path(args.model).resolve())
     with running_server(model, env={**env, "T2M_STEP_ORDER": MODES["before"]}, code_dir=args.before_code,
                         **start) as old, \
-            running_server(model, env={**env, "T2M_STEP_ORDER": MODES["after"],
-                                            "T2M_MAX_STEP_SKIPS": str(args.max_step_skips)}, **start) as new:
+            running_server(model, env={**env, "T2M_STEP_ORDER": MODES["after"], **(
+                {} if args.max_step_skips is None else {"T2M_MAX_STEP_SKIPS": str(args.max_step_skips)})},
+                **start) as new:
         servers = {"before": old.url, "after": new.url}
         for url in servers.values():
             _warm_up(url)
@@ -172,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
             for phase in phases:
                 for mode in order:
                     got = asyncio.run(run_phase(servers[mode], phase, args.seconds, long_clients=args.long_clients,
-                                                clients=args.clients, probe_pause_s=args.probe_pause_ms / 1000,
+                                                clients=args.clients, probe_interval_s=args.probe_interval_ms / 1000,
                                                 seed=round_index))
                     for kind, result in got.items():
                         results.setdefault((mode, phase, kind), []).append(result)
@@ -188,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.before_code:
         print(f"- before: the code in {args.before_code} (its own defaults); after: this checkout")
     print(f"- command: python benchmarks/step_order.py {' '.join(argv if argv is not None else sys.argv[1:])}")
-    print(f"- short: 2 s, one sentence, one probe client pausing {args.probe_pause_ms:g} ms between requests; long: "
+    print(f"- short: 2 s, one sentence, one every {args.probe_interval_ms:g} ms (open loop); long: "
           f"30 s as 3 x 10 s sentences, {args.long_clients} clients back to back; 16 clients: 10 s, one sentence")
     print()
     print(format_table(pooled))

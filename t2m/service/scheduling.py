@@ -29,8 +29,9 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from t2m.service.engine.continuous import PreparedJobs
-from t2m.service.engine.step_order import StepOrder
+from t2m.service.engine.continuous import Sampled
+from t2m.service.engine.requests import segment_steps
+from t2m.service.engine.step_order import ShortestFirst, StepOrder
 from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
 
 __all__ = [
@@ -70,7 +71,6 @@ class QueuedRequest:
     request: GenerationRequest
     future: Future = field(default_factory=Future)
     enqueued: float = field(default_factory=time.perf_counter)
-    prepared: PreparedJobs | None = None        # its job made ahead (texts encoded) by a preparing thread
 
 
 def admit(queue: deque[QueuedRequest], rows_running: int, max_rows: int) -> list[QueuedRequest]:
@@ -87,16 +87,12 @@ class QueuedWorkers:
     """The bounded queue, its Futures and the worker threads; subclasses say how a worker runs what it admits."""
 
     def __init__(self, engine: Engine, *, max_queue: int = 16, max_batch_rows: int = 64, window_s: float = 0.005,
-                 workers: int = 1, prepare_ahead: bool = False) -> None:
-        """`prepare_ahead`: a thread of its own turns each arriving request into its job (texts encoded, the
-        unknown-sentence check) before the workers may admit it, so that a worker only steps and decodes; on a
-        multi-core machine that work then runs beside the stepping instead of between its steps."""
+                 workers: int = 1) -> None:
         self.engine = engine
         self.max_queue = max_queue
         self.max_batch_rows = max_batch_rows
         self.window_s = window_s
-        self._arrivals: deque[QueuedRequest] = deque()     # waiting to be prepared (prepare_ahead only)
-        self._queue: deque[QueuedRequest] = deque()        # admissible
+        self._queue: deque[QueuedRequest] = deque()
         self._cond = threading.Condition()
         self._closed = False
         self._in_flight = 0
@@ -104,9 +100,6 @@ class QueuedWorkers:
         self.largest_batch = 0
         self._threads = [threading.Thread(target=self._work, name=f"t2m-engine-{i}", daemon=True)
                          for i in range(workers)]
-        if prepare_ahead:
-            self._threads.append(threading.Thread(target=self._prepare_arrivals, name="t2m-prepare", daemon=True))
-        self._prepares_ahead = prepare_ahead
         for thread in self._threads:
             thread.start()
 
@@ -115,30 +108,8 @@ class QueuedWorkers:
 
     @property
     def queue_depth(self) -> int:
-        """Requests waiting for a worker (being prepared or ready)."""
-        return len(self._arrivals) + len(self._queue)
-
-    def _prepare_arrivals(self) -> None:
-        """The preparing thread: each arrival's job, in arrival order, then into the admissible queue."""
-        while True:
-            with self._cond:
-                while not self._arrivals and not self._closed:
-                    self._cond.wait()
-                if self._closed:
-                    return
-                queued = self._arrivals.popleft()
-            try:
-                queued.prepared = self.engine.prepare([queued.request])   # type: ignore[attr-defined]
-            except BaseException:   # left to the worker, which prepares it again and answers the failure
-                log.exception("preparing a request ahead failed")
-            with self._cond:
-                if not self._closed:
-                    self._queue.append(queued)
-                    self._cond.notify_all()
-                    continue
-            if not queued.future.done():   # closed while it was being prepared: close() no longer sees it
-                queued.future.set_exception(GenerationCancelled("the service is shutting down"))
-            return
+        """Requests waiting for a worker."""
+        return len(self._queue)
 
     @property
     def in_flight(self) -> int:
@@ -150,12 +121,11 @@ class QueuedWorkers:
         with self._cond:
             if self._closed:
                 raise RuntimeError("the engine is shutting down")
-            waiting = len(self._arrivals) + len(self._queue)
-            if waiting >= self.max_queue:
-                raise QueueFullError(f"{waiting} requests are already waiting (limit {self.max_queue})")
+            if len(self._queue) >= self.max_queue:
+                raise QueueFullError(f"{len(self._queue)} requests are already waiting (limit {self.max_queue})")
             queued = QueuedRequest(request)
-            (self._arrivals if self._prepares_ahead else self._queue).append(queued)
-            self._cond.notify_all()
+            self._queue.append(queued)
+            self._cond.notify()
         return queued.future
 
     async def generate(self, request: GenerationRequest, timeout_s: float) -> Motion:
@@ -174,8 +144,7 @@ class QueuedWorkers:
         """Refuse new work, fail what is still queued, let running work finish."""
         with self._cond:
             self._closed = True
-            pending = list(self._arrivals) + list(self._queue)
-            self._arrivals.clear()
+            pending = list(self._queue)
             self._queue.clear()
             self._cond.notify_all()
         for queued in pending:
@@ -267,10 +236,13 @@ class CohortRunner(Protocol):
     @property
     def idle(self) -> bool: ...
 
-    def admit(self, requests: Sequence[GenerationRequest], prepared: PreparedJobs | None = None,
-              ) -> list[tuple[GenerationRequest, Motion | BaseException]]: ...
+    def admit(self, requests: Sequence[GenerationRequest]) -> list[tuple[GenerationRequest, Motion | BaseException]]:
+        ...
 
     def advance(self) -> list[tuple[GenerationRequest, Motion | BaseException]]: ...
+
+    def advance_codes(self, on_step: Callable[[int], None] | None = None,
+                      interrupt: Callable[[int], bool] | None = None) -> list[Sampled]: ...
 
 
 def running_cohorts(engine: Engine, order: StepOrder | None = None) -> CohortRunner | None:
@@ -287,17 +259,36 @@ class ContinuousBatcher(QueuedWorkers):
 
     def __init__(self, engine: Engine, *, max_queue: int = 16, max_batch_rows: int = 64, window_s: float = 0.005,
                  workers: int = 1, on_step: Callable[[int], None] | None = None,
-                 step_order: StepOrder | None = None, prepare_ahead: bool = True) -> None:
+                 step_order: StepOrder | None = None) -> None:
         """`on_step(steps)` runs in the worker after each step boundary (tests use it to submit mid-run);
-        `step_order`: which cohorts step at a boundary (engine/step_order.py; None: shortest work first);
-        `prepare_ahead`: requests are prepared by a thread of their own (QueuedWorkers)."""
+        `step_order`: which cohorts step at a boundary (engine/step_order.py; None: shortest work first)."""
         if running_cohorts(engine) is None:
             raise TypeError(f"{type(engine).__name__} has no continuous session; use MicroBatcher")
         self.on_step = on_step
-        self.step_order = step_order
+        self.step_order = step_order or ShortestFirst()
         self.joins_mid_run = 0       # requests that joined while another was part-way through (all workers)
         super().__init__(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s,
-                         workers=workers, prepare_ahead=prepare_ahead and callable(getattr(engine, "prepare", None)))
+                         workers=workers)
+
+    def _smaller_waiting(self, size: int) -> bool:
+        """Whether a prepared request much smaller (the order's ratio) than a cohort of `size` steps waits to join:
+        then the boundary ends before that cohort (engine/continuous.py RunningCohorts.advance_codes)."""
+        ratio = getattr(self.step_order, "ratio", None)
+        if ratio is None:
+            return False
+        with self._cond:
+            waiting = [queued.request for queued in self._queue]
+        return any(ratio * self._request_steps(request) < size for request in waiting)
+
+    def _request_steps(self, request: GenerationRequest) -> int:
+        """A queued request's size in steps: its longest segment (a null duration counts as the model's longest;
+        a request its model refuses counts as the longest too: admission answers it)."""
+        limits = self.engine.limits
+        try:
+            steps = segment_steps(request, limits)
+        except Exception:
+            return limits.max_tokens
+        return max(limits.max_tokens if n is None else n for n in steps)
 
     def _session(self) -> CohortRunner:
         session = running_cohorts(self.engine, self.step_order)
@@ -317,17 +308,16 @@ class ContinuousBatcher(QueuedWorkers):
                     running[id(queued.request)] = queued
                 if live:
                     mid_run = session.joins_mid_run
-                    parts = [queued.prepared for queued in live]
-                    ahead = PreparedJobs.joined(parts) if all(part is not None for part in parts) else None
-                    for request, result in session.admit([queued.request for queued in live], ahead):
+                    for request, result in session.admit([queued.request for queued in live]):
                         self._finish(running.pop(id(request)), result)
                     self.joins_mid_run += session.joins_mid_run - mid_run
                     self.batches_run += 1
                     self.largest_batch = max(self.largest_batch, len(running))
                 if session.idle:
                     continue
-                for request, result in session.advance():
-                    self._finish(running.pop(id(request)), result)
+                for done in session.advance_codes(interrupt=self._smaller_waiting):
+                    self._finish(running.pop(id(done.request)), self.engine.finish(  # type: ignore[attr-defined]
+                        done.request, done.codes, done.notes))
             except BaseException as error:  # an engine failure fails what it was running, never the worker
                 log.exception("continuous generation of %d requests failed", len(running))
                 for queued in running.values():

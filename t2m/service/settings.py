@@ -79,7 +79,7 @@ class Settings(BaseSettings):
                                       "times in a row), so a short request is not slowed by long ones beside it; "
                                       "'every-cohort' steps them all every time (the order before 0.4).")
     max_step_skips: int = Field(
-        1, ge=0, le=16, description="shortest-first: a cohort is passed over at most this many step boundaries in a "
+        3, ge=0, le=16, description="shortest-first: a cohort is passed over at most this many step boundaries in a "
                                     "row (0 = never: every cohort steps every time), which bounds what long "
                                     "requests lose to short ones.")
     request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")

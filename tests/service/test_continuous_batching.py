@@ -121,8 +121,7 @@ def test_the_batcher_lets_a_request_join_a_running_batch(engine):
             futures["short"] = batcher.submit_nowait(_short())
             futures["short"].add_done_callback(lambda _: order.append("short"))
 
-    # prepared by the worker itself, so that it joins at the next boundary
-    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step, prepare_ahead=False)
+    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step)
     try:
         futures["long"] = batcher.submit_nowait(_long())
         futures["long"].add_done_callback(lambda _: order.append("long"))
@@ -215,28 +214,26 @@ def test_requests_admitted_before_the_newest_cohort_stepped_join_it(engine):
     assert _same_motion(results[id(long)], wanted[0]) and _same_motion(results[id(short)], wanted[1])
 
 
-def test_requests_prepared_ahead_by_their_own_thread_get_their_motions(engine):
-    """prepare_ahead (the default): each request's texts are encoded by the preparing thread, not the worker that
-    steps, and the answers are the motions of each request alone."""
-    from t2m.service.engine.engine import OnnxEngine
-
-    wanted = {seed: engine.generate(_short(seed)) for seed in (31, 32, 33)}
-    threads: list[str] = []
-
-    class Recording(OnnxEngine):
-        def prepare(self, requests):
-            threads.append(threading.current_thread().name)
-            return super().prepare(requests)
-
-    recording = Recording(engine.bundle)
-    for ahead, preparer in ((True, "t2m-prepare"), (False, "t2m-engine-0")):     # False: the control
-        threads.clear()
-        batcher = ContinuousBatcher(recording, window_s=0.0, prepare_ahead=ahead)
-        try:
-            futures = {seed: batcher.submit_nowait(_short(seed)) for seed in wanted}
-            got = {seed: future.result(timeout=600) for seed, future in futures.items()}
-        finally:
-            batcher.close()
-        assert threads and set(threads) == {preparer}
-        assert all(_same_motion(got[seed], wanted[seed]) for seed in wanted)
-        assert batcher.queue_depth == 0 and batcher.in_flight == 0
+def test_a_boundary_ends_early_for_a_waiting_short_request_but_never_holds_a_cohort_too_long(engine):
+    """advance_codes(interrupt=...): after the first cohort's step, a cohort that may still wait is left for the
+    next boundary when `interrupt` says something much smaller waits; one passed over max_skips times steps anyway.
+    Codes are unchanged by it (the answers are the motions alone)."""
+    alone = engine.generate(_long(3))
+    session = engine.continuous(ShortestFirst(max_skips=2))
+    first, second = _long(3), _long(4)
+    session.admit([first])
+    session.advance()
+    session.admit([second])                      # two cohorts of the same size: both are chosen every time
+    asked: list[int] = []
+    positions = []
+    for _ in range(4):
+        session.advance_codes(interrupt=lambda size: asked.append(size) or True)
+        positions.append([running.cohort.position for running in session.running])
+    # the older cohort (sorted first among equals) steps every time; the younger one waits twice, then must step
+    assert positions == [[2, 0], [3, 0], [4, 1], [5, 1]]
+    assert asked and all(size == asked[0] for size in asked)
+    finished = {}
+    while not session.idle:
+        finished.update({id(done.request): done for done in session.advance_codes()})
+    motion = engine.finish(first, finished[id(first)].codes, finished[id(first)].notes)
+    assert _same_motion(motion, alone)

@@ -24,7 +24,7 @@ from t2m.decoding.lockstep import Cohort, SamplingJob
 from t2m.service.engine.step_order import ShortestFirst, StepOrder
 from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion
 
-__all__ = ["CohortSource", "Finished", "PreparedJobs", "RunningCohorts"]
+__all__ = ["CohortSource", "Finished", "PreparedJobs", "RunningCohorts", "Sampled"]
 
 Finished = list[tuple[GenerationRequest, Motion | BaseException]]
 """Requests whose answer is ready, each with its Motion or the failure to raise in its place."""
@@ -39,18 +39,6 @@ class PreparedJobs:
     jobs: list = field(default_factory=list)
     owners: list[int] = field(default_factory=list)
     notes: list[list[str]] = field(default_factory=list)
-
-    @classmethod
-    def joined(cls, parts: Sequence[PreparedJobs | None]) -> PreparedJobs:
-        """Several requests' preparations (each made for its own requests, in order) as one, owners renumbered."""
-        joined = cls(failures=[])
-        for part in parts:
-            assert part is not None
-            joined.owners += [len(joined.failures) + owner for owner in part.owners]
-            joined.failures += part.failures
-            joined.jobs += part.jobs
-            joined.notes += part.notes
-        return joined
 
 
 class _Engine(Protocol):
@@ -68,6 +56,15 @@ class CohortSource(Protocol):
     """A family's codes object that can start a cohort (GptCodes, HiFiGPTCodes)."""
 
     def cohort(self, jobs: Sequence[SamplingJob], max_tokens: int) -> Cohort: ...
+
+
+@dataclass(frozen=True)
+class Sampled:
+    """A request whose codes are done (None: cancelled on the way), with its warnings: what `finish` decodes."""
+
+    request: GenerationRequest
+    codes: list[np.ndarray] | None
+    notes: list[str]
 
 
 @dataclass
@@ -98,10 +95,9 @@ class RunningCohorts:
     def idle(self) -> bool:
         return not self.running
 
-    def admit(self, requests: Sequence[GenerationRequest], prepared: PreparedJobs | None = None) -> Finished:
-        """Start `requests` as a new cohort at the next step; those failing before sampling are returned at once.
-        `prepared`: their jobs made ahead (scheduling's preparing thread), else made here."""
-        prepared = prepared if prepared is not None else self.engine.prepare(requests)
+    def admit(self, requests: Sequence[GenerationRequest]) -> Finished:
+        """Start `requests` as a new cohort at the next step; those failing before sampling are returned at once."""
+        prepared = self.engine.prepare(requests)
         failed: Finished = [(request, error) for request, error in zip(requests, prepared.failures)
                             if error is not None]
         if prepared.jobs:
@@ -120,18 +116,30 @@ class RunningCohorts:
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> Finished:
         """One step of each cohort the order chooses; the requests that finished in it, decoded."""
-        done: Finished = []
-        chosen = self.order.choose([running.cohort.shortest_job_steps() for running in self.running],
-                                   [running.skipped for running in self.running])
-        for running, steps in zip(self.running, chosen):
-            if not steps:
-                running.skipped += 1
-                continue
-            running.skipped = 0
+        return [(done.request, self.engine.finish(done.request, done.codes, done.notes))
+                for done in self.advance_codes(on_step)]
+
+    def advance_codes(self, on_step: Callable[[int], None] | None = None,
+                      interrupt: Callable[[int], bool] | None = None) -> list[Sampled]:
+        """One step of each cohort the order chooses, smallest first; the requests whose codes are done, not yet
+        decoded (the caller decodes them, e.g. on another thread). `interrupt(size)` is asked before each cohort
+        after the first: true ends the boundary there (something much smaller is waiting to join), and the
+        cohorts left count as passed over, except those the order says must step now."""
+        done: list[Sampled] = []
+        sizes = [running.cohort.shortest_job_steps() for running in self.running]
+        chosen = self.order.choose(sizes, [running.skipped for running in self.running])
+        stepping = sorted((size, k) for k, (size, steps) in enumerate(zip(sizes, chosen)) if steps)
+        stepped: set[int] = set()
+        for size, k in stepping:
+            running = self.running[k]
+            if stepped and interrupt is not None and not self.order.must_step(running.skipped) and interrupt(size):
+                break
+            stepped.add(k)
             running.cohort.advance(on_step)
             for index, codes in running.cohort.finished():
-                request = running.requests[index]
-                done.append((request, self.engine.finish(request, codes, running.notes[index])))
+                done.append(Sampled(running.requests[index], codes, running.notes[index]))
+        for k, running in enumerate(self.running):
+            running.skipped = 0 if k in stepped else running.skipped + 1
         self.running = [running for running in self.running if not running.cohort.done]
         self.steps += 1
         return done

@@ -32,6 +32,10 @@ class StepOrder(Protocol):
         request and how many boundaries in a row it has been passed over. At least one steps when any runs."""
         ...
 
+    def must_step(self, skipped: int) -> bool:
+        """Whether a cohort passed over `skipped` times in a row must step now, whatever waits to join."""
+        ...
+
 
 @dataclass(frozen=True)
 class EveryCohort:
@@ -40,6 +44,9 @@ class EveryCohort:
     def choose(self, sizes: Sequence[int], skipped: Sequence[int]) -> list[bool]:
         return [True] * len(sizes)
 
+    def must_step(self, skipped: int) -> bool:
+        return True
+
 
 @dataclass(frozen=True)
 class ShortestFirst:
@@ -47,7 +54,7 @@ class ShortestFirst:
     passed over `max_skips` times in a row."""
 
     ratio: float = 2.0
-    max_skips: int = 1
+    max_skips: int = 3
 
     def __post_init__(self) -> None:
         if self.ratio < 1.0:
@@ -59,10 +66,13 @@ class ShortestFirst:
         if not sizes:
             return []
         smallest = min(sizes)
-        return [size <= self.ratio * smallest or passed >= self.max_skips for size, passed in zip(sizes, skipped)]
+        return [size <= self.ratio * smallest or self.must_step(passed) for size, passed in zip(sizes, skipped)]
+
+    def must_step(self, skipped: int) -> bool:
+        return skipped >= self.max_skips
 
 
-def step_order(name: StepOrderName | str, max_skips: int = 1) -> StepOrder:
+def step_order(name: StepOrderName | str, max_skips: int = 3) -> StepOrder:
     """The order a setting names (`T2M_STEP_ORDER`, `T2M_MAX_STEP_SKIPS`)."""
     if name == "shortest-first":
         return ShortestFirst(max_skips=max_skips)
