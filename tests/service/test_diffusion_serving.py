@@ -4,11 +4,11 @@ served sampling run with injected noise, determinism under batching, MDM's join 
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 import pytest
 import torch
+from served_stream import check_whole_and_streamed
 
 from t2m.export.families.diffusion_random import build_random_diffusion_bundle, random_diffusion_model
 
@@ -52,22 +52,7 @@ def test_served_over_http_with_exact_spans_seeds_streams_and_formats(bundles, ma
     assert health["model"]["extra"]["family"] == "diffusion"
     assert health["model"]["extra"]["streaming"]["early_frames"] is (arch == "dip")
     body = {"segments": STREAM, "seed": 11}
-    whole = client.post("/generate", json=body)
-    assert whole.status_code == 200, whole.text
-    answer = whole.json()
-    assert [(s["start_frame"], s["end_frame"]) for s in answer["segments"]] == SPANS
-    frames = np.asarray(answer["frames"])
-    assert frames.shape == (63, 22, 3) and np.isfinite(frames).all()
-    assert client.post("/generate", json=body).json()["frames"] == answer["frames"]        # same seed, same motion
-    assert client.post("/generate", json={**body, "seed": 12}).json()["frames"] != answer["frames"]
-
-    streamed = client.post("/generate", json={**body, "stream": True})
-    assert streamed.status_code == 200 and streamed.headers["content-type"].startswith("application/x-ndjson")
-    messages = [json.loads(line) for line in streamed.text.splitlines() if line]
-    assert messages[0]["type"] == "start" and messages[-1]["type"] == "end"
-    chunks = [np.asarray(m["frames"]) for m in messages if m["type"] == "frames"]
-    np.testing.assert_allclose(np.concatenate(chunks), frames, atol=2e-5)
-    assert messages[-1]["segments"] == answer["segments"] and messages[-1]["frame_count"] == 63
+    _, chunks = check_whole_and_streamed(client, body, SPANS)
     if arch == "dip":   # frames final call by call: several chunks; control: MDM sends its motion once it is made
         assert len(chunks) > 1
     for fmt in ("bvh", "glb"):

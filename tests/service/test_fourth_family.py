@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 import tiny_family
+from served_stream import check_whole_and_streamed
 
 REPO = Path(__file__).resolve().parents[2]
 STREAM = [{"text": "a person walks forward", "duration": 3.0},
@@ -59,22 +59,7 @@ def test_the_fourth_family_is_served_over_http_with_streams(tiny_bundle, make_cl
     assert health["model"]["extra"]["family"] == "fourth"
     assert health["model"]["extra"]["streaming"]["early_frames"] is False
     body = {"segments": STREAM, "seed": 11, "guidance": 2.0}
-    whole = client.post("/generate", json=body)
-    assert whole.status_code == 200, whole.text
-    answer = whole.json()
-    assert [(s["start_frame"], s["end_frame"]) for s in answer["segments"]] == [(0, 60), (60, 100), (100, 140)]
-    frames = np.asarray(answer["frames"])
-    assert frames.shape == (140, 22, 3) and np.isfinite(frames).all()
-    assert client.post("/generate", json=body).json()["frames"] == answer["frames"]  # same seed, same motion
-    assert client.post("/generate", json={**body, "seed": 12}).json()["frames"] != answer["frames"]
-
-    streamed = client.post("/generate", json={**body, "stream": True})
-    assert streamed.status_code == 200 and streamed.headers["content-type"].startswith("application/x-ndjson")
-    messages = [json.loads(line) for line in streamed.text.splitlines() if line]
-    assert messages[0]["type"] == "start" and messages[-1]["type"] == "end"
-    chunks = [np.asarray(m["frames"]) for m in messages if m["type"] == "frames"]
-    np.testing.assert_allclose(np.concatenate(chunks), frames, atol=2e-5)
-    assert messages[-1]["segments"] == answer["segments"] and messages[-1]["frame_count"] == 140
+    check_whole_and_streamed(client, body, [(0, 60), (60, 100), (100, 140)])
 
     for fmt in ("bvh", "glb"):
         assert client.post("/generate", json={**body, "format": fmt}).status_code == 200

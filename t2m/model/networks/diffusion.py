@@ -38,6 +38,7 @@ from torch import nn
 
 from t2m.model.networks.config import ConfigDict
 from t2m.model.networks.gpt import sinusoid_table
+from t2m.model.networks.token_transformer import InputProcess
 
 __all__ = ["MDM", "AveragedMDM", "DiffusionConfig", "released_weights"]
 
@@ -144,17 +145,6 @@ def released_weights(checkpoint: Mapping[str, Any], use_ema: bool) -> dict[str, 
     else:
         weights = checkpoint
     return {key: value for key, value in weights.items() if not key.startswith("clip_model.")}
-
-
-class InputProcess(nn.Module):
-    """Frames [B, T, F] -> tokens [B, T, E]."""
-
-    def __init__(self, features: int, latent_dim: int) -> None:
-        super().__init__()
-        self.poseEmbedding = nn.Linear(features, latent_dim)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.poseEmbedding(x)
 
 
 class OutputProcess(nn.Module):
