@@ -21,6 +21,12 @@ if [ "$wheelhouse" = 1 ]; then
   step "wheelhouse (offline build mode): scripts/build_wheelhouse.sh"
   scripts/build_wheelhouse.sh deploy/wheelhouse
 fi
+# Each build leaves the previous smoke image's layers dangling; without this, repeated CI runs fill the disk.
+docker image prune -f > /dev/null
+docker builder prune -f > /dev/null 2>&1 || true
+docker_root="$(docker info -f '{{.DockerRootDir}}')"
+free_mb="$(df -Pm "$docker_root" | awk 'NR == 2 {print $4}')"
+[ "$free_mb" -ge 3000 ] || fail "only ${free_mb} MB free under $docker_root: the build needs about 3 GB (docker system prune)"
 step "docker build -t $image (BASE_IMAGE=$base, WHEELHOUSE=$wheelhouse)"
 started=$SECONDS
 docker build --network host --build-arg BASE_IMAGE="$base" --build-arg WHEELHOUSE="$wheelhouse" -t "$image" . \
