@@ -163,6 +163,13 @@ class ModelFamily:
         """t2m.model.evaluation.evaluate.Models for `t2m eval --<eval_run_option> RUN`."""
         raise NotImplementedError(f"family {self.name!r} cannot be evaluated from training runs")
 
+    def load_bundle_eval_models(self, evaluator: Any, evaluator_run: str, bundle: Any) -> Any:
+        """t2m.model.evaluation.evaluate.Models for `t2m eval --bundle DIR` (families with `evaluates_bundle`): the
+        base samples lockstep jobs of exact lengths with the served object and decodes codes with decoder.onnx."""
+        from t2m.export.evaluation import lockstep_bundle_models
+
+        return lockstep_bundle_models(evaluator, evaluator_run, bundle, self.serve(bundle))
+
     default_eval_guidance: ClassVar[tuple[float, ...]] = (1.0, 3.0)
 
     def __repr__(self) -> str:

@@ -1,5 +1,7 @@
-"""`t2m eval --bundle DIR`: Table 1 for exactly what a bundle serves, without its training runs (families whose
-served object samples lockstep jobs of exact lengths: `evaluates_bundle`, the GPT and T2M-HiFiGPT).
+"""`t2m eval --bundle DIR`: Table 1 for exactly what a bundle serves, without its training runs (families that
+declare `evaluates_bundle`; each builds its Models with `load_bundle_eval_models`: here the lockstep families, GPT and
+T2M-HiFiGPT, whose served object samples jobs of exact lengths; the diffusion family's is
+t2m.export.diffusion_evaluation).
 
 The family's codes come from the service's own loop (the family's served object, e.g. t2m.service.engine.gpt_codes
 over t2m.decoding.gpt) stepping the bundle's step graphs, its text features from the bundle's tokenizer +
@@ -18,7 +20,7 @@ import numpy as np
 from t2m.decoding.gpt import SamplingJob
 from t2m.model.evaluation.evaluate import Models
 
-__all__ = ["BundleDecoder", "BundleLockstepFamily", "load_bundle_models"]
+__all__ = ["BundleDecoder", "BundleLockstepFamily", "load_bundle_models", "lockstep_bundle_models"]
 
 
 class BundleLockstepFamily:
@@ -67,11 +69,10 @@ class BundleDecoder:
 
 
 def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, threads: int = 1) -> Models:
-    """The evaluator and a served GPT or T2M-HiFiGPT bundle (its text graph, step graphs and decoder in onnxruntime)."""
+    """The evaluator and a served bundle of a family that `evaluates_bundle`, loaded by the service's loader."""
     from t2m.bundle import get_family, iter_families
     from t2m.model.training.checkpoint import load_model
     from t2m.service.engine.bundle import load_bundle
-    from t2m.service.engine.text import TextEncoder, load_tokenizer
 
     bundle = load_bundle(bundle_dir, intra_op_threads=threads)
     manifest = bundle.manifest
@@ -84,9 +85,17 @@ def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, thread
     if evaluator.config.feature_dim != manifest.feature_dim:
         raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, bundle "
                          f"{manifest.feature_dim}")
-    family = BundleLockstepFamily(model_family.serve(bundle), manifest.max_tokens, str(bundle_dir), manifest.family)
+    return model_family.load_bundle_eval_models(evaluator, str(evaluator_run), bundle)
+
+
+def lockstep_bundle_models(evaluator: Any, evaluator_run: str, bundle: Any, served: Any) -> Models:
+    """A GPT or T2M-HiFiGPT bundle: its text graph, step graphs (through `served`) and decoder in onnxruntime."""
+    from t2m.service.engine.text import TextEncoder, load_tokenizer
+
+    manifest = bundle.manifest
+    family = BundleLockstepFamily(served, manifest.max_tokens, str(bundle.path), manifest.family)
     text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
     return Models(evaluator, None, family, bundle.mean.astype(np.float32), bundle.std.astype(np.float32),
                   evaluator_text=evaluator.config.text_encoder,
-                  paths={"evaluator": str(evaluator_run), "bundle": str(bundle_dir)},
+                  paths={"evaluator": evaluator_run, "bundle": str(bundle.path)},
                   decoder=BundleDecoder(bundle.decoder_session, manifest.frames_per_token), family_text=text)

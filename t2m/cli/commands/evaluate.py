@@ -1,7 +1,7 @@
 """`t2m eval`: the papers' Table 1 (and T2LM's multi-sentence metrics) for a VQ-VAE + GPT, or for the masked family
 (joint VQ + masked + residual transformer), or for T2M-HiFiGPT (residual VQ + double-tier GPT), on a test split. The
-family is the token run given: --gpt, --masked or --hifigpt; or a served GPT or T2M-HiFiGPT bundle (--bundle DIR:
-its own ONNX graphs, no training runs)."""
+family is the token run given: --gpt, --masked or --hifigpt; or a served GPT, T2M-HiFiGPT or diffusion (MDM, DiP)
+bundle (--bundle DIR: its own ONNX graphs, no training runs)."""
 from __future__ import annotations
 
 import argparse
@@ -23,15 +23,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "
                     "GPT family: --vq VQ_RUN --gpt RUN. Masked family: --vq JOINT_VQ_RUN --masked RUN --residual RUN "
                     "[--length RUN], decoded by the service's loop (t2m.decoding.masked). T2M-HiFiGPT: --vq "
-                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt). A served GPT or T2M-HiFiGPT bundle: "
-                    "--bundle DIR (its text, step and decoder graphs in onnxruntime through the service's loop; no "
-                    "VQ-reconstruction row).")
+                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt). A served GPT, T2M-HiFiGPT or diffusion "
+                    "bundle: --bundle DIR (its text, step or denoiser and decoder graphs in onnxruntime through the "
+                    "service's loop; no VQ-reconstruction row; a diffusion bundle's streams are one request each, "
+                    "joined as served).")
     parser.add_argument("--data", required=True, help="dataset directory in HumanML3D layout")
     parser.add_argument("--evaluator", required=True, help="evaluator run directory (t2m train evaluator)")
     parser.add_argument("--vq", default=None, help="VQ-VAE run directory (the joint VQ for the masked family)")
     parser.add_argument("--bundle", default=None,
-                        help="a served GPT or T2M-HiFiGPT bundle instead of runs (no --vq): evaluates what the "
-                             "service runs")
+                        help="a served GPT, T2M-HiFiGPT or diffusion bundle instead of runs (no --vq): evaluates "
+                             "what the service runs")
     owners: dict[str, list[argparse.Action]] = {}
     for family in iter_families():
         if family.eval_run_option is None:

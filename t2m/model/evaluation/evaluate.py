@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from t2m.model.evaluation import metrics
+from t2m.model.evaluation.family import StreamFamily
 from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_texts
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
@@ -286,7 +287,8 @@ def decode(models: Models, codes: Sequence[Sequence[int]] | Sequence[np.ndarray]
     for indices in _groups_by_length(codes).values():
         for start in range(0, len(indices), batch_size):
             chunk = indices[start:start + batch_size]
-            stacked = np.stack([np.asarray(codes[i], dtype=np.int64) for i in chunk])
+            dtype = getattr(models.decoder, "code_dtype", np.int64)   # float frames for the diffusion family
+            stacked = np.stack([np.asarray(codes[i], dtype=dtype) for i in chunk])
             if models.decoder is not None:
                 features = models.decoder.decode_batch(stacked)
             else:
@@ -494,11 +496,21 @@ def estimated_length_metrics(models: Models, cond: np.ndarray, estimated: Sequen
 def multi_sentence(models: Models, cond: np.ndarray, tokens: Sequence[int], streams: np.ndarray, guidance: float,
                    options: EvalOptions, generator: np.random.Generator,
                    real_window_emb: np.ndarray | None) -> dict[str, float]:
-    """T2LM's streams: per-sentence codes, concatenated, decoded once; sliding/transition FID and pelvis jumps."""
+    """T2LM's streams: per-sentence codes, concatenated, decoded once; sliding/transition FID and pelvis jumps. A
+    family that samples whole streams itself (`sample_streams`: the diffusion family's chained calls and joins) gets
+    each stream as one request."""
     flat = streams.reshape(-1)
-    codes = sample(models, cond[flat], np.asarray(tokens)[flat], guidance, options, generator,
-                   f"streams g={guidance:g}")
-    per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
+    if isinstance(models.family, StreamFamily):
+        per_stream = []
+        for start in range(0, len(streams), options.batch_size):
+            chunk = streams[start:start + options.batch_size]
+            per_stream += models.family.sample_streams([cond[stream] for stream in chunk],
+                                                       [[int(tokens[i]) for i in stream] for stream in chunk],
+                                                       guidance, generator)
+    else:
+        codes = sample(models, cond[flat], np.asarray(tokens)[flat], guidance, options, generator,
+                       f"streams g={guidance:g}")
+        per_stream = [codes[i:i + streams.shape[1]] for i in range(0, len(codes), streams.shape[1])]
     motions = decode(models, [np.concatenate([np.asarray(segment) for segment in stream]) for stream in per_stream],
                      options.batch_size)
     lengths = [[models.frames_per_token * len(segment) for segment in stream] for stream in per_stream]

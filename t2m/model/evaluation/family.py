@@ -8,7 +8,7 @@ draws and the same evaluator.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -37,6 +37,17 @@ class CodeFamily(Protocol):
 
     def estimate_tokens(self, cond: np.ndarray, rng: np.random.Generator) -> list[int] | None:
         """Token counts the family would choose itself for these texts (a length estimator), or None."""
+        ...
+
+
+@runtime_checkable
+class StreamFamily(Protocol):
+    """A family that samples a stream of sentences itself (the diffusion family: DiP's chained calls, MDM's
+    in-betweened joins) instead of per-sentence codes concatenated: the stream table then measures its own joins."""
+
+    def sample_streams(self, conds: Sequence[np.ndarray], tokens: Sequence[Sequence[int]], guidance: float,
+                       rng: np.random.Generator) -> list[list[Any]]:
+        """Per stream (its sentences' condition rows and lengths), each segment's codes of exactly its length."""
         ...
 
 
