@@ -95,6 +95,7 @@ class DiffusionFamily(ModelFamily):
         "dip": ("t2m.model.networks.diffusion", "AveragedMDM", "DiffusionConfig")}
 
     evaluates_bundle = True   # `t2m eval --bundle`: t2m.export.diffusion_evaluation
+    int8_graphs = frozenset({"text"})   # `t2m export --int8 text` (a trained run's MiniLM token-state graph)
 
     def capabilities_of(self, manifest: Any) -> Capabilities:
         """DiP streams call by call (each call's frames are final: later calls only read them); MDM's whole motions
@@ -200,6 +201,9 @@ class DiffusionFamily(ModelFamily):
             raise ValueError("--family diffusion exports a trained run (--diffusion-run RUN, from `t2m train dip`) "
                              "or a tiny random-weight bundle (--diffusion-random mdm|dip), one of the two; import a "
                              "released MDM or DiP with `t2m import mdm|dip`")
+        if args.diffusion_random is not None and args.int8 != "none":
+            raise ValueError(f"--int8 {args.int8}: quantises a trained run's text graph (--diffusion-run RUN); the "
+                             "random bundles keep float32 graphs")
 
     def export(self, args: argparse.Namespace, int8: frozenset[str]) -> tuple[dict, dict]:
         if args.diffusion_run is not None:
@@ -207,7 +211,8 @@ class DiffusionFamily(ModelFamily):
 
             return export_dip_from_run(args.diffusion_run, args.output, name=args.name, version=args.version,
                                        default_guidance=args.guidance, model_card=args.model_card,
-                                       data_summary=args.data_summary, check_parity=not args.skip_parity)
+                                       data_summary=args.data_summary, check_parity=not args.skip_parity,
+                                       int8_text="text" in int8)
         from t2m.export.families.diffusion_random import build_random_diffusion_bundle
 
         manifest = build_random_diffusion_bundle(

@@ -94,6 +94,12 @@ def test_the_export_cli_writes_a_random_bundle_and_refuses_without_one(tmp_path,
     assert main(["export", "--family", "gpt", "--vq", "x", "--gpt", "y", "--diffusion-random", "mdm",
                  "-o", str(tmp_path / "z")]) == 2
     assert "--diffusion-random: only with --family diffusion" in capsys.readouterr().err
+    assert main(["export", "--family", "diffusion", "--diffusion-random", "dip", "--int8", "text",
+                 "-o", str(tmp_path / "q")]) != 0
+    assert "--int8 text: quantises a trained run's text graph" in capsys.readouterr().err
+    assert main(["export", "--family", "diffusion", "--diffusion-random", "dip", "--int8", "denoiser",
+                 "-o", str(tmp_path / "q")]) != 0
+    assert "--int8 denoiser: give none, all, or some of text" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------ sentences

@@ -158,3 +158,26 @@ def test_bad_options_are_refused_naming_them(setup, tmp_path):
                             ({"latent": 15}, "--latent"), ({"cond_mask_prob": 1.5}, "--cond-mask-prob")):
         with pytest.raises(ValueError, match=name):
             train_dip.train(arguments(data, tmp_path / "bad", **overrides), encoder)
+
+
+def test_int8_text_export_measures_its_price_and_serves(setup):
+    """`t2m export --int8 text`: the token-state graph quantised, its cosine to float32 states on the card and in
+    the manifest's quantization block, and the bundle verified and served."""
+    import json
+
+    from t2m.export.families.diffusion import export_dip_from_run
+    from t2m.service.engine.engine import OnnxEngine
+    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+    root, _, encoder = setup
+    manifest, checks = export_dip_from_run(root / "falls", root / "bundle_int8", check_parity=False,
+                                           text_source=token_states_text_source(encoder), int8_text=True)
+    report = checks["int8"]["text_encoder"]
+    assert 0.9 < report["min_cosine"] <= report["mean_cosine"] <= 1.0 + 1e-6
+    assert report["int8_bytes"] < report["fp32_bytes"]
+    written = json.loads((root / "bundle_int8" / "manifest.json").read_text())
+    assert written["quantization"]["text_encoder"] == "int8-dynamic" == manifest["quantization"]["text_encoder"]
+    assert "text encoder: cosine to float32 features" in (root / "bundle_int8" / "MODEL_CARD.md").read_text()
+    motion = OnnxEngine.load(root / "bundle_int8", intra_op_threads=1).generate(
+        GenerationRequest(segments=[SegmentRequest("a person walks forward", 1.0)], seed=3))
+    assert motion.joints.shape == (20, 22, 3) and np.isfinite(motion.joints).all()

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from t2m.bundle.manifest import COMMON_FILES
+from t2m.export.kit.checks import INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.text_sources import TextSource
 from t2m.model.networks.diffusion import MDM
 
@@ -51,13 +52,15 @@ def export_diffusion_bundle(
     version: str, training_data: Mapping[str, str], license: str, default_guidance: float,
     unconditional_branch: bool = True, max_frames: int = MDM_MAX_FRAMES, join_frames: int = JOIN_FRAMES,
     join_context: int = JOIN_CONTEXT, prefix: np.ndarray | None = None, description: str = "",
-    notes: str = "", checks: Callable[[Path], str] | None = None) -> dict[str, Any]:
+    notes: str = "", checks: Callable[[Path], str] | None = None,
+    int8_reports: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write and verify the bundle; returns the written manifest. `max_frames`: the longest segment (MDM: 196; a
     DiP model has no limit of its own: how long one sentence may run); `prefix` [context_len, F] normalised frames
     before DiP's first call (default: standing_prefix of mean/std); `join_frames` / `join_context`: MDM's
     in-between window at each join of sentences (0 join frames: the sentences are put end to end as made);
     `checks(out_dir)`, called once the graphs are written (an importer's parity against its modules), returns
-    Markdown the card adds after `notes`."""
+    Markdown the card adds after `notes`; `int8_reports` (a dict): the text graph is quantised to int8 (its
+    price, cosine to the float32 states and speed, is put in it under "text_encoder" and on the card)."""
     from t2m.export.graphs.diffusion import export_denoiser, export_denormaliser
     from t2m.export.writing.bundle import motion_fields, render_family_card, write_bundle
 
@@ -85,6 +88,11 @@ def export_diffusion_bundle(
         files[PREFIX_FILE] = out_dir / PREFIX_FILE
     if checks is not None:
         notes = notes + "\n" + checks(out_dir)
+    quantized_text = None
+    if int8_reports is not None:
+        int8_reports["text_encoder"] = _quantize_text(out_dir)
+        quantized_text = INT8_LABEL
+        notes += "\n## int8\n\n" + text_int8_line(int8_reports["text_encoder"]) + "\n"
     block = {"arch": c.arch, "steps": c.diffusion_steps, "default_guidance": float(default_guidance),
              "unconditional_branch": bool(unconditional_branch),
              "text_conditioning": "tokens" if c.text_tokens else "pooled", "mask_frames": c.mask_frames,
@@ -95,7 +103,7 @@ def export_diffusion_bundle(
         "family": "diffusion", "name": name, "version": version, **motion_fields(c.features, 1, max_frames),
         "codebook_size": 1, "residual_layers": 1, "text_encoder": text, "diffusion": block,
         "training_data": dict(training_data), "license": license,
-        "quantization": {"text_encoder": None, "denoiser": None}}
+        "quantization": {"text_encoder": quantized_text, "denoiser": None}}
     how = (f"{c.pred_len}-frame calls after {c.context_len} clean frames, each sentence its own calls; the first "
            "call continues a standing pose (prefix.npy)" if chained else
            f"each sentence a whole motion of at most {max_frames} frames; joins re-made by in-betweening "
@@ -108,6 +116,16 @@ def export_diffusion_bundle(
     (out_dir / "MODEL_CARD.md").write_text(card, encoding="utf-8")
     files["MODEL_CARD.md"] = out_dir / "MODEL_CARD.md"
     return write_bundle(out_dir, files, manifest)
+
+
+def _quantize_text(out_dir: Path) -> dict[str, Any]:
+    """text_encoder.onnx -> int8 dynamic in place; returns its measured price (quantize.TextInt8Report)."""
+    from dataclasses import asdict
+
+    from t2m.export.writing.quantize import text_int8_report
+
+    return quantize_in_place(out_dir / "text_encoder.onnx",
+                             lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
 
 
 def denoiser_parity(model: MDM, graph: str | Path, seed: int = 0) -> float:
@@ -140,10 +158,10 @@ def denoiser_parity(model: MDM, graph: str | Path, seed: int = 0) -> float:
 def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | None = None, version: str = "0.1.0",
                         default_guidance: float | None = None, model_card: str | Path | None = None,
                         data_summary: str | Path | None = None, text_source: TextSource | None = None,
-                        check_parity: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+                        check_parity: bool = True, int8_text: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
     """A `t2m train dip` run -> a DiP bundle: its EMA weights (model_avg), the MiniLM token-state text graph it was
-    trained on (`text_source` replaces it in tests), the run's mean/std, the standing prefix; returns (manifest,
-    checks)."""
+    trained on (`text_source` replaces it in tests; int8 with `int8_text`), the run's mean/std, the standing prefix;
+    returns (manifest, checks)."""
     from t2m.export.kit.runs import run_training_data
     from t2m.export.kit.text_sources import token_states_text_source
     from t2m.model.networks.diffusion import AveragedMDM
@@ -173,6 +191,7 @@ def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | Non
     if model_card:
         notes += "\n" + Path(model_card).read_text(encoding="utf-8")
     c = model.config
+    int8: dict[str, Any] | None = {} if int8_text else None
     manifest = export_diffusion_bundle(
         out_dir, model=model, mean=mean, std=std, text_source=text_source,
         name=name or f"t2m-{training_data['name']}-dip-minilm", version=version, training_data=training_data,
@@ -180,6 +199,6 @@ def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | Non
         unconditional_branch=float(training.get("cond_mask_prob", 0.0)) > 0, max_frames=TRAINED_MAX_FRAMES,
         description=f"A small DiP trained here ({c.layers} decoder layers, latent {c.latent_dim}) on "
                     f"{training_data['name']}: {c.pred_len}-frame calls after {c.context_len} frames, "
-                    f"{c.diffusion_steps} DDPM steps, MiniLM token states.", notes=notes)
+                    f"{c.diffusion_steps} DDPM steps, MiniLM token states.", notes=notes, int8_reports=int8)
     parity = denoiser_parity(model, Path(out_dir) / "denoiser.onnx") if check_parity else None
-    return manifest, {"parity": {"denoiser_max_abs": parity} if parity is not None else "skipped", "int8": {}}
+    return manifest, {"parity": {"denoiser_max_abs": parity} if parity is not None else "skipped", "int8": int8 or {}}

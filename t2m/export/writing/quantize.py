@@ -167,7 +167,8 @@ REPORT_TEXTS = [
 
 def text_int8_report(fp32_path: str | Path, int8_path: str | Path, tokenizer_path: str | Path,
                      repeats: int = 5, threads: int = 1) -> TextInt8Report:
-    """Cosine similarity of int8 vs float32 text features on a handful of motion captions, and speed."""
+    """Cosine similarity of int8 vs float32 text features (pooled, or every real token's state) on a handful of
+    motion captions, and speed."""
     from t2m.export.graphs.export import ort_session
     from t2m.export.graphs.text import tokenize
 
@@ -183,6 +184,9 @@ def text_int8_report(fp32_path: str | Path, int8_path: str | Path, tokenizer_pat
         times.append((time.perf_counter() - start) / repeats)
         outputs.append(features)
     a, b = outputs
+    if a.ndim == 3:   # token states (the diffusion family's DiP): every real token's vector
+        keep = mask.numpy().astype(bool)
+        a, b = a[keep], b[keep]
     cosine = (a * b).sum(1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
     return TextInt8Report(
         min_cosine=float(cosine.min()), mean_cosine=float(cosine.mean()),
