@@ -30,7 +30,8 @@ def _span_probe(motion, segment: int) -> str:
     """The raise-left probe on one segment's frames: which hand is up, measured."""
     span = motion.segments[segment]
     result = probe_by_name(PROBE).check(motion.joints[span.start_frame:span.end_frame])
-    return f"[{PROBE} on segment {segment + 1}: {result.value:+.2f} {result.unit}, {'pass' if result.passed else 'fail'}]"
+    verdict = "pass" if result.passed else "fail"
+    return f"[{PROBE} on segment {segment + 1}: {result.value:+.2f} {result.unit}, {verdict}]"
 
 
 def main(argv: list[str] | None = None) -> int:
