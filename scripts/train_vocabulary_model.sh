@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# Issue 28: the default model's recipe (scripts/train_hifigpt_model.sh, version 0.3.0) retrained on Bandai-Namco AND
+# the CMU motions with people's HumanML3D sentences (t2m data merge), to see whether people's sentences widen what the
+# model follows. Every option is the default model's; only the data differ. Run from the repository root in the
+# training environment (scripts/setup_env.sh .venv train,dev); each stage writes progress, train.log, log.csv and
+# curves.png in its run directory, and continues with the same command plus --resume.
+# Started 2026-11-26 (stage 1 in the background beside the DiP training of issue 26); the timings of each stage are
+# written below as they are measured.
+set -euo pipefail
+SHARED="${T2M_SHARED:-../shared}"
+RUNS="${RUNS:-runs/both}"
+DATA="${DATA:-data/both}"
+TEXT="$RUNS/text_minilm.npz"
+
+# 0. The two datasets and their merge (ids prefixed bn- / cmu-; Mean/Std over the merged train split).
+[ -f data/bandai/summary.json ] || t2m data build --source "$SHARED/data/bandai-namco/bandai-namco-motion.tar.xz" \
+  --out data/bandai
+[ -f data/cmu/summary.json ] || t2m data build --source "$SHARED/data/cmu-captioned/cmu-captioned-motion.tar.xz" \
+  --out data/cmu
+[ -f "$DATA/summary.json" ] || t2m data merge --input bn-=data/bandai --input cmu-=data/cmu --out "$DATA"
+
+# 1. The residual VQ (the default's stage 1; 24000 steps).
+t2m train vq --data "$DATA" --out "$RUNS/rvq" --steps 24000 --batch-size 64 --window 32 --width 128 --code-dim 128 \
+  --nb-code 256 --down-t 3 --quantizer residual --residual-layers 6 --shared-codebook --quantizer-dropout 0.2 \
+  --lr 2e-4 --warmup-steps 300 --lr-milestones 0.8 --balance-power 0.5 --bone-weight 0.5 --log-every 50 \
+  --val-every 1000 --save-every 500 --threads 1 --seed 0
+
+# 2. The double-tier GPT (the default's stage 2 + 2b in one run of 6000 steps).
+t2m train hifigpt --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/hifigpt" --steps 6000 --batch-size 64 --lr 4e-4 \
+  --warmup-steps 200 --lr-milestones 0.75 --embed 256 --heads 4 --temporal-layers 3 --residual-gpt-layers 3 \
+  --max-tokens 25 --corruption 0.5 --cond-drop 0.1 --cond-noise 0.8 --length-keep 0.8 --stop-weight 1.0 \
+  --balance-power 0.3 --text-cache "$TEXT" --log-every 25 --val-every 500 --save-every 250 --threads 2 --seed 0
+
+# 3. The causal decoder (the default's stage 2c).
+t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --steps 12000 --batch-size 64 \
+  --window 64 --lr 2e-4 --warmup-steps 200 --lr-milestones 0.7 --bone-weight 0.5 --balance-power 0.5 --log-every 50 \
+  --val-every 1000 --save-every 500 --threads 1 --seed 0
+
+# 4. The bundle, then the comparison with the shipped default on the SAME evaluator and test split (Bandai-Namco's;
+#    the evaluator is the default's, runs/evaluator), the stream table, the probes and the new action probes.
+t2m export --family hifigpt --vq "$RUNS/rvq_causal" --hifigpt "$RUNS/hifigpt" --int8 text,temporal,residual \
+  --name t2m-both-hifigpt-minilm --version 0.4.0 -o "$RUNS/bundle"
+t2m index-captions "$RUNS/bundle" --data "$DATA"
+for bundle in t2m/bundles/default "$RUNS/bundle"; do
+  name="$(basename "$bundle")"
+  t2m eval --bundle "$bundle" --data data/bandai --evaluator "${EVALUATOR:-runs/evaluator}" --guidance 3 \
+    --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_$name.md"
+  python benchmarks/probes.py --bundle "$bundle" --seeds 5 --json-out "$RUNS/probes_$name.json"
+  python benchmarks/probes.py --bundle "$bundle" --probes jump,invert,get_up --seeds 5 --no-stream \
+    --json-out "$RUNS/action_probes_$name.json"     # the CMU actions (0/90 for every embedded model before)
+done
