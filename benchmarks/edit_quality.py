@@ -1,0 +1,102 @@
+"""Does an edited span follow its new text, and are the edit's borders as smooth as a generated stream's joins?
+(issue 27, "Measured"). Engine level, the path POST /edit takes (t2m.service.editing.edit_in_process).
+
+Per model and seed: "walk 3 s, wave 2 s, bow 3 s" is generated; its wave is edited into "a person raises the left
+hand"; as the reference, "walk 3 s, raise the left hand 2 s, bow 3 s" is generated whole with the same seed. Printed:
+- the raise-left probe (t2m.model.evaluation.probes) on segment 2 of the original (a control: a right-hand wave
+  should fail it), of the edit and of the generated reference: pass rates over the seeds;
+- the pelvis-velocity change at segment 2's two borders (t2m.model.evaluation.probes.join_smoothness, m/s per frame)
+  in the edit and in the reference, and each one's ratio to its motion's median change inside segments;
+- frames bit-identical to the original before the edit (the rest is outside the decoder's reach).
+Nothing is asserted: figures to read side by side.
+
+    python benchmarks/edit_quality.py [--model t2m/bundles/default] [--model t2m/bundles/gpt] [--seeds 10]
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from t2m.model.evaluation.probes import join_smoothness, probe_by_name
+from t2m.service.editing import edit_in_process
+from t2m.service.engine.engine import OnnxEngine
+from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
+from t2m.service.handles import make_handle
+from t2m.service.schemas import RegenerateEdit
+
+REPO = Path(__file__).resolve().parents[1]
+BEFORE, AFTER = ("a person walks forward", 3.0), ("a person bows", 3.0)
+ORIGINAL = ("a person waves with the right hand", 2.0)
+NEW_TEXT = "a person raises the left hand"
+EDITED = 1
+
+
+@dataclass
+class Tally:
+    """Per-seed figures of one kind of motion (original, edit, reference)."""
+
+    passes: list[bool] = field(default_factory=list)
+    border_changes: list[float] = field(default_factory=list)
+    border_ratios: list[float] = field(default_factory=list)
+
+    def add(self, motion: Motion) -> None:
+        span = motion.segments[EDITED]
+        self.passes.append(probe_by_name("raise_left").check(motion.joints[span.start_frame:span.end_frame]).passed)
+        smooth = join_smoothness(motion.joints, [s.start_frame for s in motion.segments[1:]], fps=motion.fps)
+        self.border_changes += smooth.join_changes
+        self.border_ratios += smooth.ratios
+
+    def line(self, name: str) -> str:
+        return (f"  {name:34s} raise_left pass {sum(self.passes):2d}/{len(self.passes):<2d}  border change median "
+                f"{np.median(self.border_changes):5.2f} p90 {np.percentile(self.border_changes, 90):5.2f}  ratio "
+                f"median {np.median(self.border_ratios):5.1f} p90 {np.percentile(self.border_ratios, 90):5.1f}")
+
+
+def measure(model: Path, seeds: int, threads: int) -> None:
+    engine = OnnxEngine.load(model, intra_op_threads=threads)
+    limits = engine.limits
+    if "regenerate" not in limits.edits:
+        print(f"{limits.name}: its family declares no regenerate edit; skipped")
+        return
+    guidance = limits.guidance()
+    original, edited, reference = Tally(), Tally(), Tally()
+    kept: list[int] = []
+    for seed in range(seeds):
+        texts = [BEFORE, ORIGINAL, AFTER]
+        request = GenerationRequest([SegmentRequest(t, d) for t, d in texts], seed=seed, guidance=guidance)
+        motion = engine.generate(request)
+        handle = make_handle(limits, request, motion.codes)
+        assert handle is not None, f"{model}: no handle"
+        edit = edit_in_process(engine, handle, [RegenerateEdit(segment=EDITED, text=NEW_TEXT)]).motion
+        whole = engine.generate(GenerationRequest(
+            [SegmentRequest(t, d) for t, d in (BEFORE, (NEW_TEXT, ORIGINAL[1]), AFTER)], seed=seed,
+            guidance=guidance))
+        original.add(motion)
+        edited.add(edit)
+        reference.add(whole)
+        same = np.all(edit.joints == motion.joints, axis=(1, 2))
+        kept.append(int(np.argmin(same)) if not same.all() else len(same))
+    start = motion.segments[EDITED].start_frame
+    print(f"{limits.name} {limits.version}: {seeds} seeds, guidance {guidance:g}; edit starts at frame {start}, "
+          f"frames kept bit-identical before it: min {min(kept)}, median {int(np.median(kept))}")
+    print(original.line('original (wave, right hand)'))
+    print(edited.line('edit (wave -> raise left)'))
+    print(reference.line('generated whole (raise left)'))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", type=Path, action="append", default=None,
+                        help="bundle directory (repeatable; default: t2m/bundles/default and t2m/bundles/gpt)")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    for model in args.model or [REPO / "t2m" / "bundles" / "default", REPO / "t2m" / "bundles" / "gpt"]:
+        measure(model, args.seeds, args.threads)
+
+
+if __name__ == "__main__":
+    main()
