@@ -222,3 +222,14 @@ def test_over_http_edits_and_refusals(make_client, masked_bundle, random_bundle,
     detail = edit(client, flat["handle"], [upper], status=422)["detail"]
     assert detail[0]["loc"] == ["body", "edits", 0, "op"] and "body_part" in detail[0]["msg"]
     assert edit(client, flat["handle"], [gap])["segments"][1]["text"] == "a person turns"
+
+
+def test_the_sdk_objects_are_the_api_edits(engine, original):
+    from t2m.client import BodyPart, InBetween
+    from t2m.client.models import edits_json
+
+    _, _, handle = original
+    objects = edits_json([InBetween(0, "a person turns", 1.2, seed=3), BodyPart(2, "lower_body", start=1.0)])
+    assert objects == [{"op": "in_between", "after": 0, "text": "a person turns", "duration": 1.2, "seed": 3},
+                       {"op": "body_part", "segment": 2, "part": "lower_body", "start": 1.0}]
+    assert run(engine, handle, *objects).handle == run(engine, handle, *[dict(o) for o in objects]).handle
