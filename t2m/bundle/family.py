@@ -46,8 +46,8 @@ FieldRule = tuple[Callable[[Any], bool], str]
 BUILTIN_FAMILY_PACKAGE = "t2m.families"
 ENTRY_POINT_GROUP = "t2m.families"
 
-# edit kinds a family may declare (Capabilities.edits): POST /edit serves the first three (the segment edits) for a
-# family that declares them; in_between and body_part are declared by families whose loops can, for a later step
+# edit kinds a family may declare (Capabilities.edits): POST /edit serves the segment edits (the first three) for a
+# family that declares them, and in_between and body_part for a family whose loop inpaints (Capabilities.inpaints)
 EDIT_KINDS = ("regenerate", "append", "prepend", "in_between", "body_part")
 # what a family of independent per-segment token sequences does by sampling only the edited segments (GPT, HiFiGPT)
 SEGMENT_EDITS = frozenset({"regenerate", "append", "prepend"})
@@ -62,12 +62,15 @@ class Capabilities:
     reach is probed); `code_depth`: the decoder reads [steps, R] code rows (T2M-HiFiGPT) instead of [steps] or
     [steps, C, R] maps, for the reach probe; `edits`: the edit kinds it supports (of EDIT_KINDS: "regenerate" a
     segment with a new text, seed or duration, "append" / "prepend" segments, "in_between", "body_part"); POST /edit
-    answers 422 for a kind the model's family does not declare; `devices`: where its graphs may run."""
+    answers 422 for a kind the model's family does not declare; `inpaints`: an edit's tokens are filled by the
+    family's own loop with the kept tokens around them as context (a request's `inpaint` maps: the masked family),
+    not sampled alone; `devices`: where its graphs may run."""
 
     continuous_batching: bool = False
     early_frames: bool = False
     code_depth: bool = False
     edits: frozenset[str] = frozenset()
+    inpaints: bool = False
     devices: tuple[str, ...] = ("cpu",)
     why_not_early: str = "the whole token map exists only at the end"
 

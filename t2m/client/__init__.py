@@ -3,8 +3,10 @@ from t2m.client.client import AsyncT2MClient, T2MClient
 from t2m.client.errors import AuthError, OverloadedError, ServerError, T2MConnectionError, T2MError, ValidationError
 from t2m.client.models import (
     Append,
+    BodyPart,
     FrameChunk,
     Health,
+    InBetween,
     ModelInfo,
     Motion,
     Prepend,
@@ -18,8 +20,10 @@ __all__ = [
            "Append",
            "AsyncT2MClient",
            "AuthError",
+           "BodyPart",
            "FrameChunk",
            "Health",
+           "InBetween",
            "ModelInfo",
            "Motion",
            "OverloadedError",

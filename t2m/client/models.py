@@ -9,9 +9,11 @@ import numpy as np
 
 __all__ = [
     "Append",
+    "BodyPart",
     "EditLike",
     "FrameChunk",
     "Health",
+    "InBetween",
     "ModelInfo",
     "Motion",
     "Prepend",
@@ -146,11 +148,46 @@ class Prepend(Append):
     op: str = "prepend"
 
 
-EditLike: TypeAlias = Regenerate | Append | Mapping[str, Any]
+@dataclass(frozen=True)
+class InBetween:
+    """Fill the join after segment `after` with a new segment (a model whose /health `extra.edits` has in_between:
+    the masked family)."""
+
+    after: int
+    text: str
+    duration: float
+    seed: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"op": "in_between", "after": self.after, "text": self.text, "duration": self.duration,
+                "seed": self.seed}
+
+
+@dataclass(frozen=True)
+class BodyPart:
+    """Sample some joints of segment `segment` again ("upper_body" / "lower_body"), from `start` to `end` seconds into
+    it (None: all of it), keeping the other joints (a model whose /health `extra.edits` has body_part)."""
+
+    segment: int
+    part: str
+    text: str | None = None
+    start: float | None = None
+    end: float | None = None
+    seed: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        body: dict[str, Any] = {"op": "body_part", "segment": self.segment, "part": self.part}
+        body.update({key: value for key, value in (("text", self.text), ("start", self.start), ("end", self.end),
+                                                   ("seed", self.seed)) if value is not None})
+        return body
+
+
+EditLike: TypeAlias = Regenerate | Append | InBetween | BodyPart | Mapping[str, Any]
 
 
 def edits_json(edits: Sequence[EditLike]) -> list[dict[str, Any]]:
-    """The `edits` of a POST /edit body: Regenerate / Append / Prepend objects or the API's own dicts."""
+    """The `edits` of a POST /edit body: Regenerate / Append / Prepend / InBetween / BodyPart objects or the API's own
+    dicts."""
     return [dict(edit) if isinstance(edit, Mapping) else edit.to_json() for edit in edits]
 
 

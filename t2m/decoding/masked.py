@@ -13,7 +13,8 @@ temperature 1 whatever the mask stage's is, which `residual_temperature` reprodu
 own Generator, per step one uniform per token of its segments in segment order, so its tokens do not depend on what
 else shares the batch (padded rows of shorter segments are never drawn). `MaskedStep`/`ResidualStep` are what the
 loop needs from the networks: the service wraps the ONNX graphs, the PyTorch reference wraps the modules
-(t2m.model.sampling.masked).
+(t2m.model.sampling.masked). A segment may come with an `Inpaint` (an edit, t2m.decoding.inpaint): its known tokens
+start unmasked and frozen, only the others are scheduled and drawn, and its answer is the map's kept rows.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from typing import Protocol
 
 import numpy as np
 
+from t2m.decoding.inpaint import Inpaint
 from t2m.decoding.tokens import draw_tokens, guided_logits
 
 __all__ = ["MaskedJob", "MaskedStep", "ResidualStep", "remask_counts", "sample_branch_maps", "sample_token_maps"]
@@ -68,6 +70,8 @@ class MaskedJob:
     greedy: bool = False
     cancelled: Callable[[], bool] = field(default=lambda: False)
     branches: list[MaskedJob] = field(default_factory=list)  # further generators on these segments (sample_branch_maps)
+    # per segment, None or the kept codes around (or within) it and the tokens to fill: an edit (decoding/inpaint.py)
+    inpaint: Sequence[Inpaint | None] | None = None
 
 
 def remask_counts(tokens: int, steps: int) -> list[int]:
@@ -87,6 +91,7 @@ class _Segment:
     tokens: np.ndarray                 # int64 [rows * C] first-layer tokens (mask id where unknown)
     scores: np.ndarray                 # float64 [rows * C] confidence; inf = frozen
     counts: list[int]
+    inpaint: Inpaint | None = None     # an edit's kept codes, put back after every residual pass
 
 
 def _batch_conds(jobs: Sequence[MaskedJob], segments: list[_Segment], guided: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -175,12 +180,28 @@ def _residual_layers(step: ResidualStep, jobs: Sequence[MaskedJob], segments: li
                                                                             "residual"))):
             drawn[drawn == step.pad_id] = -1
             codes[index, :segment.rows, :, q] = drawn.reshape(segment.rows, columns)
+            if segment.inpaint is not None:
+                segment.inpaint.restore(codes[index, :segment.rows], q)
     if step.mask_id is not None:
         for index, segment in enumerate(segments):
             own = codes[index, :segment.rows]
             if (own == step.mask_id).any():
                 own[...] = own.clip(0, step.mask_id - 1)
     return codes
+
+
+def _new_segment(job: int, rows: int, masked: MaskedStep, steps: int, paint: Inpaint | None) -> _Segment:
+    """A segment's first-layer state: all masked, or (an edit) its known tokens kept and only `fill` masked."""
+    size = rows * masked.columns
+    if paint is None:
+        return _Segment(job, rows, np.full(size, masked.mask_id, np.int64), np.zeros(size),
+                        remask_counts(size, steps))
+    if paint.rows != rows or paint.fill.shape[1] != masked.columns:
+        raise ValueError(f"an inpainted map of {paint.rows} rows x {paint.fill.shape[1]} columns for a segment of "
+                         f"{rows} rows x {masked.columns} columns")
+    tokens, scores = paint.first_layer(masked.mask_id)
+    return _Segment(job, rows, tokens, scores, paint.counts(remask_counts(max(1, int(paint.fill.sum())), steps)),
+                    paint)
 
 
 def sample_token_maps(masked: MaskedStep, residual: ResidualStep | None, jobs: Sequence[MaskedJob],
@@ -198,10 +219,9 @@ def sample_token_maps(masked: MaskedStep, residual: ResidualStep | None, jobs: S
         job = jobs[j]
         if len(job.rows) != len(job.conds) or min(job.rows, default=0) < 1:
             raise ValueError(f"every segment needs >= 1 token rows and a text feature, got rows {list(job.rows)}")
-        for rows in job.rows:
-            size = rows * masked.columns
-            segments.append(_Segment(j, rows, np.full(size, masked.mask_id, np.int64), np.zeros(size),
-                                     remask_counts(size, steps)))
+        for k, rows in enumerate(job.rows):
+            paint = None if job.inpaint is None else job.inpaint[k]
+            segments.append(_new_segment(j, rows, masked, steps, paint))
     live_jobs = [jobs[j] for j in live]
     for segment in segments:
         segment.job = live.index(segment.job)
@@ -216,7 +236,8 @@ def sample_token_maps(masked: MaskedStep, residual: ResidualStep | None, jobs: S
                           for s in segments])
     maps: dict[int, list[np.ndarray]] = {j: [] for j in live}
     for index, segment in enumerate(segments):
-        maps[live[segment.job]].append(codes[index, :segment.rows])
+        own = codes[index, :segment.rows]
+        maps[live[segment.job]].append(own if segment.inpaint is None else segment.inpaint.answer(own))
     return [maps.get(j) for j in range(len(jobs))]
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from t2m.bundle.errors import BundleError
-from t2m.bundle.family import Capabilities, FieldRule, ModelFamily
+from t2m.bundle.family import SEGMENT_EDITS, Capabilities, FieldRule, ModelFamily
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, branch_graphs, features_output
 from t2m.bundle.manifest import (
     BOOL,
@@ -169,7 +169,8 @@ class MaskedFamily(ModelFamily):
     title = "MoMask / MoGenTS: token maps by confidence re-masking + residual passes, batches run to their end"
     fields = MASKED_FIELDS
     optional_fields = OPTIONAL_FIELDS
-    capabilities = Capabilities(why_not_early="the whole token map exists only at the end (masked family)")
+    capabilities = Capabilities(why_not_early="the whole token map exists only at the end (masked family)",
+                                edits=SEGMENT_EDITS | {"in_between"}, inpaints=True)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {
         "joint-vq": ("t2m.model.training.train_joint_vq", "train the 2D joint VQ-VAE (time x joint token maps)"),
         "masked": ("t2m.model.training.train_masked", "train the masked transformer on a VQ's first-layer codes"),
@@ -257,6 +258,18 @@ class MaskedFamily(ModelFamily):
         return (f"masked: {m.columns} column(s) x {manifest.residual_layers} layers, {m.steps} steps, guidance "
                 f"{m.guidance:g} / residual {m.residual_guidance:g}, top-k {m.top_k} / {m.residual_top_k}{branches}, "
                 f"length estimator {'yes' if m.length_estimator else 'no'}")
+
+    def capabilities_of(self, manifest: Any) -> Capabilities:
+        """Edits fill the edited tokens by inpainting; `body_part` too where the map's columns are joint groups (a
+        joint-token map: t2m.service.engine.body_parts), not for MoMask's one column."""
+        from dataclasses import replace
+
+        from t2m.motion.skeleton import get_skeleton
+        from t2m.service.engine.body_parts import part_columns
+
+        if not part_columns(get_skeleton(manifest.skeleton).joint_names, manifest.settings.columns):
+            return self.capabilities
+        return replace(self.capabilities, edits=self.capabilities.edits | {"body_part"})
 
     def serve(self, bundle: Any) -> Any:
         from t2m.service.engine.masked_codes import MaskedCodes

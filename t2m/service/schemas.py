@@ -35,6 +35,7 @@ __all__ = [
     "MAX_TEXT_CHARS",
     "MAX_TOTAL_S",
     "MIN_DURATION_S",
+    "BodyPartEdit",
     "ContinueEdit",
     "EditRequest",
     "EditResponse",
@@ -42,6 +43,7 @@ __all__ = [
     "ErrorResponse",
     "GenerateRequest",
     "HealthResponse",
+    "InBetweenEdit",
     "ModelDetails",
     "ModelInfo",
     "MotionResponse",
@@ -177,13 +179,46 @@ class ContinueEdit(_Strict):
                                                 "seed and the op.")
 
 
+class InBetweenEdit(_Strict):
+    """Fill a gap at the join after segment `after` with a new segment of this text and duration, keeping both
+    sides (a family whose loop inpaints: the masked family)."""
+
+    op: Literal["in_between"]
+    after: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(
+        description="The new segment goes between segment `after` and segment `after + 1` of the handle.",
+        examples=[0])
+    text: Text = Field(description="What happens in the gap.", examples=["a person turns around"])
+    duration: float = Field(ge=MIN_DURATION_S, le=MAX_DURATION_S, description="The gap's length in seconds.")
+    seed: Seed | None = Field(None, description="Its seed; null derives one from the handle's seed and `after`.")
+
+
+class BodyPartEdit(_Strict):
+    """Regenerate some joints of one segment (over all of it, or from `start` to `end` seconds into it), keeping the
+    other joints' tokens (a joint-token masked model: /health `extra.edits` lists body_part)."""
+
+    op: Literal["body_part"]
+    segment: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(
+        description="Index of the segment in the handle.", examples=[1])
+    part: Literal["upper_body", "lower_body"] = Field(description="The joints to regenerate.")
+    text: Text | None = Field(None, description="What the part does; null keeps the segment's text.",
+                              examples=["a person waves with both hands"])
+    start: float | None = Field(None, ge=0.0, le=MAX_DURATION_S,
+                                description="Seconds into the segment where the change starts; null: its start.")
+    end: float | None = Field(None, gt=0.0, le=MAX_DURATION_S,
+                              description="Seconds into the segment where it ends; null: the segment's end.")
+    seed: Seed | None = Field(None, description="Its seed; null derives one from the handle's seed and the segment.")
+
+
+_EDIT_TAGS = {"append": "continue", "prepend": "continue", "in_between": "in_between", "body_part": "body_part"}
+
+
 def _edit_kind(value: Any) -> str:
-    if isinstance(value, dict):
-        return "continue" if value.get("op") in ("append", "prepend") else "regenerate"
-    return "continue" if getattr(value, "op", None) in ("append", "prepend") else "regenerate"
+    op = value.get("op") if isinstance(value, dict) else getattr(value, "op", None)
+    return _EDIT_TAGS.get(op, "regenerate") if isinstance(op, str) else "regenerate"
 
 
-Edit = Annotated[Annotated[RegenerateEdit, Tag("regenerate")] | Annotated[ContinueEdit, Tag("continue")],
+Edit = Annotated[Annotated[RegenerateEdit, Tag("regenerate")] | Annotated[ContinueEdit, Tag("continue")]
+                 | Annotated[InBetweenEdit, Tag("in_between")] | Annotated[BodyPartEdit, Tag("body_part")],
                  Discriminator(_edit_kind)]
 
 
@@ -195,7 +230,10 @@ class EditRequest(_Strict):
     edits: list[Edit] = Field(
         default_factory=list, max_length=MAX_SEGMENTS,
         description="What to change: regenerate edits ({segment, text?, seed?, duration?}, each segment at most "
-                    "once) and continue edits ({op: append | prepend, segments, seed?}). Empty: the handle's motion "
+                    "once), continue edits ({op: append | prepend, segments, seed?}), in-between edits ({op: "
+                    "in_between, after, text, duration, seed?}) and body-part edits ({op: body_part, segment, part, "
+                    "text?, start?, end?, seed?}); a family answers 422 at `op` for a kind it does not support "
+                    "(/health `extra.edits`). Empty: the handle's motion "
                     "again, bit for bit (e.g. in another format).")
     format: OutputFormat = Field("json", description="json (joints, with the new handle), bvh or glb.")
     model: ModelName | None = Field(None, description="The served model to use; null = the handle's own. Either way "
@@ -205,7 +243,11 @@ class EditRequest(_Strict):
         {"handle": "t2m1....", "edits": [{"segment": 1, "text": "a person raises the left hand"}]},
         {"handle": "t2m1....", "edits": [{"segment": 0, "seed": 7}, {"segment": 2, "duration": 4.0}]},
         {"handle": "t2m1....", "edits": [{"op": "append", "segments": [{"text": "a person sits down",
-                                                                        "duration": 3.0}]}], "format": "bvh"}]})
+                                                                        "duration": 3.0}]}], "format": "bvh"},
+        {"handle": "t2m1....", "edits": [{"op": "in_between", "after": 0, "text": "a person turns around",
+                                          "duration": 2.0}]},
+        {"handle": "t2m1....", "edits": [{"op": "body_part", "segment": 0, "part": "upper_body",
+                                          "text": "a person waves with the right hand"}]}]})
 
 
 class EditedSegment(BaseModel):

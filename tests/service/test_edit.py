@@ -158,7 +158,7 @@ def test_masked_codes_round_trip_through_a_handle(masked_bundle):
     engine = OnnxEngine.load(masked_bundle, intra_op_threads=1)
     request = request_of([("a person walks forward", 2.0), ("a person kicks", 1.6)])
     motion = engine.generate(request)
-    assert engine.limits.edits == frozenset()
+    assert engine.limits.inpaints   # its edits: tests/service/test_edit_masked.py
     handle = read_handle(make_handle(engine.limits, request, motion.codes), engine.limits)
     assert [s.codes.shape[1:] for s in handle.segments] == [engine.limits.codes.shape] * 2
     again = engine.compose(handle.request(), [s.codes for s in handle.segments])
@@ -392,15 +392,16 @@ def test_two_models_each_edit_their_own_handles(make_client, random_bundle, hifi
     assert detail[0]["loc"] == ["body", "handle"] and "handle.model" in detail[0]["msg"]
 
 
-def test_the_masked_family_refuses_segment_edits_naming_them(make_client, masked_bundle):
-    client = make_client(Settings(bundle_path=masked_bundle, intra_op_threads=1))
-    health = client.get("/health").json()
-    assert health["model"]["extra"]["edits"] == []
-    original = generate(client, [("a person walks forward", 2.0), ("a person kicks", 1.6)])
-    detail = edit(client, original["handle"], [{"segment": 0, "text": "a person runs"}], status=422)["detail"]
-    assert detail[0]["loc"] == ["body", "edits", 0, "op"]
-    assert "family 'masked'" in detail[0]["msg"] and "none yet" in detail[0]["msg"]
-    assert edit(client, original["handle"], [])["frames"] == original["frames"]   # no edit: the motion again
+def test_kinds_a_family_does_not_declare_are_refused_naming_them(app_client):
+    """The GPT family samples segments alone: it declares no in_between or body_part (the masked family does)."""
+    health = app_client.get("/health").json()
+    assert health["model"]["extra"]["edits"] == ["append", "prepend", "regenerate"]
+    original = generate(app_client)
+    for kind in ({"op": "in_between", "after": 0, "text": "a person turns", "duration": 1.0},
+                 {"op": "body_part", "segment": 0, "part": "upper_body"}):
+        detail = edit(app_client, original["handle"], [kind], status=422)["detail"]
+        assert detail[0]["loc"] == ["body", "edits", 0, "op"]
+        assert "family 'gpt'" in detail[0]["msg"] and kind["op"] in detail[0]["msg"]
 
 
 def test_openapi_documents_edit_with_examples(app_client):

@@ -98,7 +98,9 @@ class OnnxEngine:
                      "streaming": self._streaming_details(),
                      "family": manifest.family,
                      **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
-            ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits)
+            ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits,
+            inpaints=self.capabilities.inpaints,
+            body_parts=dict(getattr(self.codes, "body_parts", {})) if "body_part" in self.capabilities.edits else {})
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,

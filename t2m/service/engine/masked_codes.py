@@ -8,6 +8,10 @@ or refused naming the segment's duration when the bundle has no length estimator
 the mask stage's scale, `temperature` and `top_k` (null: the manifest's) apply to the mask stage; the residual stage
 uses the manifest's guidance and top-k, and the request's temperature unless the manifest fixes
 `residual_temperature` (MoMask's imports: 1, as MoMask's own generation does).
+
+An edit's request (POST /edit) carries an `inpaint` map per sampled segment (t2m.decoding.inpaint): its rows are the
+map's, kept codes around the tokens to fill, and each further generator gets the map's columns of its own.
+`body_parts` are the token columns a `body_part` edit may regenerate (engine/body_parts.py).
 """
 from __future__ import annotations
 
@@ -17,12 +21,15 @@ from dataclasses import replace
 import numpy as np
 import onnxruntime as ort
 
+from t2m.decoding.inpaint import Inpaint
 from t2m.decoding.masked import MaskedJob, sample_branch_maps, sample_token_maps
+from t2m.motion.skeleton import get_skeleton
+from t2m.service.engine.body_parts import part_columns
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 from t2m.service.engine.requests import check_top_k, segment_steps
 from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
+from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits, RequestLimitError
 
 __all__ = ["MaskedCodes", "draw_rows"]
 
@@ -56,6 +63,7 @@ class MaskedCodes:
         for branch in settings.branches:
             bounds += [branch.codebook_size] * branch.columns
         self.code_layout = CodeLayout((len(bounds), bundle.manifest.residual_layers), tuple(bounds), low=-1)
+        self.body_parts = part_columns(get_skeleton(manifest.skeleton).joint_names, settings.columns)
 
     @staticmethod
     def _steps(bundle: Bundle, files: tuple[str, str], columns: int, mask_id: int, pad_id: int,
@@ -77,14 +85,34 @@ class MaskedCodes:
                 rows[index] = draw_rows(segment_logits, rng, limits.max_tokens)
         return rows
 
+    def _inpaint_rows(self, request: GenerationRequest, steps: list[int | None], limits: ModelLimits) -> list[int]:
+        """Rows per segment of an edit's request: each inpainted map's (its kept rows: the segment's steps)."""
+        assert request.inpaint is not None
+        if len(request.inpaint) != len(request.segments):
+            raise ValueError(f"{len(request.inpaint)} inpaint maps for {len(request.segments)} segments")
+        rows = []
+        for index, (paint, own) in enumerate(zip(request.inpaint, steps)):
+            kept = None if paint is None else paint.keep[1] - paint.keep[0]
+            if paint is None and own is None:
+                raise RequestLimitError(f"segments.{index}.duration: give a duration in seconds")
+            if paint is not None and (paint.known.shape[1:] != self.code_layout.shape or paint.rows > limits.max_tokens
+                                      or own not in (None, kept)):
+                raise ValueError(f"segment {index}: an inpaint map of {paint.known.shape} keeping {kept} rows does "
+                                 f"not fit ({own} steps, at most {limits.max_tokens} rows of {self.code_layout.shape})")
+            rows.append(paint.rows if paint is not None else int(own or 0))
+        return rows
+
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> MaskedJob:
-        steps = segment_steps(request, limits, free=None if self.length is not None else (
-            f"model {limits.name!r} has no length estimator; give this segment a duration in seconds"))
+        steps = segment_steps(request, limits, free=None if self.length is not None or request.inpaint is not None
+                              else f"model {limits.name!r} has no length estimator; give this segment a duration in "
+                                   "seconds")
         check_top_k(request, limits)
         conds = text.encode([s.text for s in request.segments])
         rng = np.random.default_rng(request.seed)
         s = self.settings
-        job = MaskedJob(conds=conds, rows=self._rows(steps, conds, rng, limits), rng=rng, steps=s.steps,
+        rows = (self._rows(steps, conds, rng, limits) if request.inpaint is None
+                else self._inpaint_rows(request, steps, limits))
+        job = MaskedJob(conds=conds, rows=rows, rng=rng, steps=s.steps, inpaint=request.inpaint,
                         guidance=request.guidance, residual_guidance=s.residual_guidance,
                         temperature=request.temperature if s.temperature is None else s.temperature,
                         top_k=request.top_k if request.top_k is not None else s.top_k,
@@ -92,8 +120,13 @@ class MaskedCodes:
                         cancelled=lambda: request.cancelled)
         # further generators: the same segments, rows and generator, their own top-k (a request's top_k, like its
         # guidance and temperature, applies to every generator's mask stage)
+        starts = np.cumsum([s.columns] + [branch.columns for branch in s.branches]).tolist()
         job.branches = [replace(job, top_k=request.top_k if request.top_k is not None else branch.top_k,
-                                residual_top_k=branch.residual_top_k, branches=[]) for branch in s.branches]
+                                residual_top_k=branch.residual_top_k, branches=[],
+                                inpaint=_columns(request.inpaint, start, start + branch.columns))
+                        for branch, start in zip(s.branches, starts)]
+        if request.inpaint is not None:
+            job.inpaint = _columns(request.inpaint, 0, s.columns)
         return job
 
     def sample(self, jobs: Sequence[MaskedJob], max_tokens: int,
@@ -101,3 +134,10 @@ class MaskedCodes:
         if not self.branches:
             return sample_token_maps(self.masked, self.residual, jobs, on_step)
         return sample_branch_maps([(self.masked, self.residual), *self.branches], jobs, on_step)
+
+
+def _columns(inpaint: tuple[Inpaint | None, ...] | None, start: int, stop: int) -> tuple[Inpaint | None, ...] | None:
+    """An edit's maps cut to one generator's columns."""
+    if inpaint is None:
+        return None
+    return tuple(None if paint is None else paint.columns(start, stop) for paint in inpaint)

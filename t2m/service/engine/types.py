@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from t2m.decoding.inpaint import Inpaint
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 __all__ = [
@@ -96,6 +97,8 @@ class ModelLimits:
     ends_segments: str | None = None   # how the model ends a segment of null duration (None: it cannot; a 422)
     codes: CodeLayout | None = None    # its segments' codes as handles carry them (None: not tokens, no handle)
     edits: frozenset[str] = frozenset()   # the edit kinds POST /edit serves for it (its family's capabilities)
+    inpaints: bool = False   # its edits fill masked tokens with the kept ones around them (the masked family)
+    body_parts: dict[str, tuple[int, ...]] = field(default_factory=dict)   # body_part edits: part -> token columns
 
     def guidance(self, requested: float | None = None) -> float:
         """The guidance scale to use: the requested one, else the model's default (1 = off for a model without a
@@ -137,6 +140,9 @@ class GenerationRequest:
     top_k: int | None = None
     cancel_event: threading.Event = field(default_factory=threading.Event, compare=False, repr=False)
     on_frames: FrameSink | None = field(default=None, compare=False, repr=False)   # streaming: early frames go here
+    # an edit of a family whose loop inpaints (ModelLimits.inpaints): per segment None or its map with the kept codes
+    # around it (t2m.decoding.inpaint); the segment's answer is the map's kept rows
+    inpaint: tuple[Inpaint | None, ...] | None = field(default=None, compare=False, repr=False)
 
     def cancel(self) -> None:
         """Ask the engine to stop working on this request (e.g. its HTTP client timed out)."""

@@ -1,5 +1,6 @@
-"""POST /edit: a motion the service made (its answer's `handle`) with some segments sampled again or added, the other
-segments' codes kept, all decoded once: the frames before the edit and outside the decoder's reach of it are the
+"""POST /edit: a motion the service made (its answer's `handle`) with some segments sampled again or added (a gap
+filled in between, a body part regenerated, where the family inpaints), the other segments' codes kept, all decoded
+once: the frames before the edit and outside the decoder's reach of it are the
 handle's bit for bit, the frames after it the same motion rigidly moved (docs/api.md states the exact rule).
 Stateless: the handle carries everything (service/handles.py)."""
 from __future__ import annotations
@@ -59,17 +60,20 @@ def _model_of(body: EditRequest, state: ServiceState) -> ServedModel:
 
 
 @router.post("/edit", response_model=EditResponse, responses=_EDIT_RESPONSES, dependencies=[Depends(require_api_key)],
-             summary="Edit a motion: regenerate some segments, append or prepend others, keep the rest")
+             summary="Edit a motion: regenerate some segments (or a body part), append, prepend or fill a gap "
+                     "in between, keep the rest")
 async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) -> Response:
     """`handle` is a json answer's handle (of /generate or /edit). Each regenerate edit samples its segment again (a
-    new text, seed or duration); append and prepend edits add segments; every other segment keeps its codes, and
-    the codes are decoded once: frames before the edit and outside the decoder's reach are the handle's bit for bit,
-    frames after it the same motion rigidly moved (the root's path is a running sum; docs/api.md gives the rule). No
-    edits answers the handle's motion again, bit for bit. The model must be the one (name and version) that made the
-    handle; a family answers 422 for an edit kind it does not support (GET /health: a model's `extra.edits`). A 422
-    names the field: `handle` for a handle that is corrupted, altered, out of the model's ranges or another model's
-    (the message names the part: `handle.checksum`, `handle.segments.0.codes`, `handle.model`), `edits.<i>...` for
-    an edit the handle or the model does not allow."""
+    new text, seed or duration); append and prepend edits add segments; an in_between edit fills the join after a
+    segment with a new one and a body_part edit regenerates some joints of a segment (a family whose loop inpaints,
+    the masked family, fills every edit with the kept codes on both sides as context); every other segment keeps its
+    codes, and the codes are decoded once: frames before the edit and outside the decoder's reach are the handle's
+    bit for bit, frames after it the same motion rigidly moved (the root's path is a running sum; docs/api.md gives
+    the rule). No edits answers the handle's motion again, bit for bit. The model must be the one (name and version)
+    that made the handle; a family answers 422 for an edit kind it does not support (GET /health: a model's
+    `extra.edits`). A 422 names the field: `handle` for a handle that is corrupted, altered, out of the model's
+    ranges or another model's (the message names the part: `handle.checksum`, `handle.segments.0.codes`,
+    `handle.model`), `edits.<i>...` for an edit the handle or the model does not allow."""
     model = _model_of(body, state)
     limits = model.limits
     try:
