@@ -90,11 +90,11 @@ def measure(model: Path, seeds: int, threads: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--model", type=Path, action="append", default=None,
-                        help="bundle directory (repeatable; default: t2m/bundles/default and t2m/bundles/gpt)")
+                        help="bundle directory (repeatable; default: the three embedded models)")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
-    for model in args.model or [REPO / "t2m" / "bundles" / "default", REPO / "t2m" / "bundles" / "gpt"]:
+    for model in args.model or [REPO / "t2m" / "bundles" / name for name in ("default", "gpt", "masked")]:
         measure(model, args.seeds, args.threads)
 
 
