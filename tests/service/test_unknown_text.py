@@ -157,3 +157,33 @@ def _wait(client) -> None:
             return
         time.sleep(0.05)
     raise AssertionError("the service did not become ready")
+
+
+def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp_path, capsys):
+    """A DiP bundle's text graph gives token states: the index holds each caption's real tokens averaged, the very
+    feature its requests are checked with, so a training caption is found at similarity ~1 and warns of nothing."""
+    from synthetic_motion_data import make_dataset
+
+    from t2m.cli.main import main
+    from t2m.export.families.diffusion_random import build_random_diffusion_bundle
+    from t2m.export.writing.caption_index import encode_with_bundle, training_captions
+    from t2m.service.engine.diffusion_codes import encode_token_states, pooled_token_states
+    from t2m.service.engine.engine import OnnxEngine
+
+    bundle = tmp_path / "dip"
+    build_random_diffusion_bundle(bundle, arch="dip", seed=1)
+    data = make_dataset(tmp_path / "data")
+    phrasings = tmp_path / "phrasings.json"
+    phrasings.write_text(json.dumps({name: {"known": ["a person walks forward", "someone waves"],
+                                            "unknown": ["a cat purrs", "rain falls"]}
+                                     for name in ("calibration", "evaluation")}))
+    assert main(["index-captions", str(bundle), "--data", str(data), "--phrasings", str(phrasings)]) == 0
+    capsys.readouterr()
+    engine = OnnxEngine.load(bundle, intra_op_threads=1)
+    assert engine.limits.details["unknown_text"]["detection"] == "warn"
+    captions = training_captions(data)
+    pooled = pooled_token_states(encode_token_states(engine.text, captions[:3])[0])
+    np.testing.assert_allclose(encode_with_bundle(bundle, captions[:3], progress=False), pooled, atol=1e-6)
+    nearest = engine.caption_index.nearest(pooled, k=1)
+    assert [row[0].caption for row in nearest] == captions[:3] and min(r[0].similarity for r in nearest) > 0.99
+    assert engine.generate(GenerationRequest([SegmentRequest(captions[0], 2.0)], seed=0, guidance=1.0)).warnings == []

@@ -47,14 +47,22 @@ def training_captions(data_dir: Path, split: str = "train") -> list[str]:
 
 
 def encode_with_bundle(bundle_dir: Path, texts: list[str], batch: int = 256, progress: bool = True) -> np.ndarray:
-    """Text features of `texts` as the service computes them (the bundle's tokenizer + text graph)."""
+    """Text features of `texts` as the service computes them (the bundle's tokenizer + text graph; a token-state
+    graph's real tokens averaged, as the diffusion family's requests pool them)."""
     import onnxruntime as ort
+
+    from t2m.service.engine.diffusion_codes import encode_token_states, pooled_token_states
 
     manifest = read_manifest(bundle_dir)
     session = ort.InferenceSession(str(bundle_dir / "text_encoder.onnx"), providers=["CPUExecutionProvider"])
     encoder = TextEncoder(session, load_tokenizer(bundle_dir / "tokenizer.json", manifest.text_max_length))
+    tokens = "token_states" in {output.name for output in session.get_outputs()}
+
+    def encode(chunk: list[str]) -> np.ndarray:
+        return pooled_token_states(encode_token_states(encoder, chunk)[0]) if tokens else encoder.encode(chunk)
+
     starts = range(0, len(texts), batch)
-    return np.concatenate([encoder.encode(texts[s:s + batch])
+    return np.concatenate([encode(texts[s:s + batch])
                            for s in tqdm(starts, desc="caption features", unit="batch", disable=not progress)])
 
 

@@ -106,6 +106,12 @@ def encode_token_states(text: TextEncoder, texts: Sequence[str]) -> tuple[list[n
             [np.ones(int(count), bool) for count in counts])
 
 
+def pooled_token_states(states: Sequence[np.ndarray]) -> np.ndarray:
+    """Each text's real tokens' states averaged: MiniLM's own sentence pooling (before its normalisation), the
+    features a token-state bundle's caption index and unknown-text check compare."""
+    return np.stack([row.mean(axis=0) for row in states]).astype(np.float32)
+
+
 @dataclass
 class DiffusionRequest:
     """One request's work: its segments' texts (pooled [Dt] or token states [L, Dt] with masks) and frames, its
@@ -163,7 +169,7 @@ class DiffusionCodes:
         masks: list[np.ndarray] | None = None
         if self.settings.tokens:
             texts, masks = encode_token_states(text, sentences)
-            conds = np.stack([states.mean(axis=0) for states in texts]).astype(np.float32)
+            conds = pooled_token_states(texts)
         else:
             conds = text.encode(sentences)
             texts = list(conds)
