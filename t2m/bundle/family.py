@@ -91,6 +91,9 @@ class ModelFamily:
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {}
     eval_run_option: ClassVar[str | None] = None                  # `t2m eval --NAME RUN` picks this family
     evaluates_bundle: ClassVar[bool] = False                      # `t2m eval --bundle` takes its bundles
+    # "module:function" that builds its `t2m eval --bundle` Models (the lockstep families' by default; a string, as
+    # training_kinds, so that t2m.bundle imports no training or export code)
+    bundle_evaluation: ClassVar[str] = "t2m.export.evaluation:lockstep_bundle_models"
 
     # ------------------------------------------------------------------ manifest and graphs (json only)
 
@@ -168,10 +171,12 @@ class ModelFamily:
 
     def load_bundle_eval_models(self, evaluator: Any, evaluator_run: str, bundle: Any) -> Any:
         """t2m.model.evaluation.evaluate.Models for `t2m eval --bundle DIR` (families with `evaluates_bundle`): the
-        base samples lockstep jobs of exact lengths with the served object and decodes codes with decoder.onnx."""
-        from t2m.export.evaluation import lockstep_bundle_models
+        function named by `bundle_evaluation` called with the evaluator, its run and the bundle's served object."""
+        import importlib
 
-        return lockstep_bundle_models(evaluator, evaluator_run, bundle, self.serve(bundle))
+        module, _, function = self.bundle_evaluation.partition(":")
+        build = getattr(importlib.import_module(module), function)
+        return build(evaluator, evaluator_run, bundle, self.serve(bundle))
 
     default_eval_guidance: ClassVar[tuple[float, ...]] = (1.0, 3.0)
 

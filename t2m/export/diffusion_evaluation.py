@@ -109,11 +109,13 @@ class FrameDecoder:
         return np.asarray(features, np.float32)
 
 
-def diffusion_bundle_models(evaluator: Any, evaluator_run: str, bundle: Any, served: Any, describe: str) -> Models:
+def diffusion_bundle_models(evaluator: Any, evaluator_run: str, bundle: Any, served: Any) -> Models:
     """The evaluator and a served diffusion bundle (text graph, denoiser and decoder in onnxruntime)."""
+    from t2m.bundle import get_family
     from t2m.service.engine.text import TextEncoder, load_tokenizer
 
     manifest = bundle.manifest
+    describe = get_family(manifest.family).describe(manifest, manifest.settings.default_guidance)
     text = TextEncoder(bundle.text_session, load_tokenizer(bundle.tokenizer_file, manifest.text_max_length))
     source = TokenStateFeatures(text, manifest.text_max_length) if served.settings.tokens else text
     family = BundleDiffusionFamily(served, manifest.max_tokens, str(bundle.path), describe)

@@ -94,7 +94,8 @@ class DiffusionFamily(ModelFamily):
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {
         "dip": ("t2m.model.networks.diffusion", "AveragedMDM", "DiffusionConfig")}
 
-    evaluates_bundle = True   # `t2m eval --bundle`: t2m.export.diffusion_evaluation
+    evaluates_bundle = True   # `t2m eval --bundle`: frames of exact lengths, streams as served
+    bundle_evaluation = "t2m.export.diffusion_evaluation:diffusion_bundle_models"
     int8_graphs = frozenset({"text"})   # `t2m export --int8 text` (a trained run's MiniLM token-state graph)
 
     def capabilities_of(self, manifest: Any) -> Capabilities:
@@ -178,14 +179,6 @@ class DiffusionFamily(ModelFamily):
         from t2m.service.engine.diffusion_codes import DiffusionCodes
 
         return DiffusionCodes(bundle)
-
-    def load_bundle_eval_models(self, evaluator: Any, evaluator_run: str, bundle: Any) -> Any:
-        """Frames of exact lengths from the served object, streams as served (t2m.export.diffusion_evaluation)."""
-        from t2m.export.diffusion_evaluation import diffusion_bundle_models
-
-        manifest = bundle.manifest
-        describe = self.describe(manifest, manifest.settings.default_guidance)
-        return diffusion_bundle_models(evaluator, evaluator_run, bundle, self.serve(bundle), describe)
 
     def add_export_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--diffusion-run", type=Path, default=None, metavar="RUN",
