@@ -91,6 +91,7 @@ class ModelFamily:
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {}
     eval_run_option: ClassVar[str | None] = None                  # `t2m eval --NAME RUN` picks this family
     evaluates_bundle: ClassVar[bool] = False                      # `t2m eval --bundle` takes its bundles
+    encodes: ClassVar[bool] = False     # its decoder reads codes, so a bundle may hold encoder.onnx (bundle.graphs)
 
     # ------------------------------------------------------------------ manifest and graphs (json only)
 
