@@ -203,3 +203,27 @@ def test_health_and_openapi_say_who_takes_uploads(client):
     schema = client.get("/openapi.json").json()["components"]["schemas"]
     assert {"joints", "fps", "bvh", "segments", "seed"} <= set(schema["UploadedMotion"]["properties"])
     assert "motion" in schema["EditRequest"]["properties"]
+
+
+def test_t2m_edit_uploads_a_saved_json_motion_without_a_handle_and_a_bvh_file(random_bundle, tmp_path, capsys):
+    from t2m.cli.main import main
+
+    saved, bvh = tmp_path / "walk.json", tmp_path / "walk.bvh"
+    for path in (saved, bvh):
+        assert main(["generate", "a person walks forward", "--duration", "2", "--then", "a person waves",
+                     "--duration", "2", "--seed", "5", "--model", str(random_bundle), "-o", str(path)]) == 0
+    original = json.loads(saved.read_text())
+    saved.write_text(json.dumps({key: value for key, value in original.items() if key != "handle"}))
+    append = '[{"op": "append", "segments": [{"text": "a person sits", "duration": 2}], "seed": 1}]'
+    out = tmp_path / "edited.json"
+    assert main(["edit", str(saved), "--edits", append, "--model", str(random_bundle), "-o", str(out)]) == 0
+    edited = json.loads(out.read_text())
+    assert [s["text"] for s in edited["segments"]] == ["a person walks forward", "a person waves", "a person sits"]
+    assert edited["edited"] == [{"segment": 2, "seed": 1}]
+    from_bvh = tmp_path / "from_bvh.json"
+    assert main(["edit", str(bvh), "--edits", append, "--model", str(random_bundle), "-o", str(from_bvh)]) == 0
+    assert [s["text"] for s in json.loads(from_bvh.read_text())["segments"]] == ["uploaded motion", "a person sits"]
+    capsys.readouterr()
+    (tmp_path / "bad.bvh").write_text("HIERARCHY\nnot a file\n")
+    assert main(["edit", str(tmp_path / "bad.bvh"), "--model", str(random_bundle), "-o", str(out)]) == 2
+    assert "motion.bvh: not a BVH file" in capsys.readouterr().err
