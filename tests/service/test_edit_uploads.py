@@ -227,3 +227,20 @@ def test_t2m_edit_uploads_a_saved_json_motion_without_a_handle_and_a_bvh_file(ra
     (tmp_path / "bad.bvh").write_text("HIERARCHY\nnot a file\n")
     assert main(["edit", str(tmp_path / "bad.bvh"), "--model", str(random_bundle), "-o", str(out)]) == 2
     assert "motion.bvh: not a BVH file" in capsys.readouterr().err
+
+
+def test_the_sdk_edits_an_upload(live_server):
+    from t2m.client import Append, T2MClient, Upload, ValidationError
+
+    with T2MClient(live_server.url, api_key="test-key") as t2m:
+        motion = t2m.generate([("a person walks forward", 2.0)], seed=5)
+        upload = Upload.of_motion(motion)
+        edited = t2m.edit(upload, [Append([("a person sits down", 2.0)], seed=4)])
+        assert [s.text for s in edited.segments] == ["a person walks forward", "a person sits down"]
+        assert edited.handle and edited.edited == [(1, 4)]
+        assert np.array_equal(t2m.edit(upload, [Append([("a person sits down", 2.0)], seed=4)]).frames, edited.frames)
+        bvh = t2m.edit_raw(motion, [], "bvh").content.decode()
+        assert t2m.edit(Upload(bvh=bvh, seed=2)).segments[0].text == "uploaded motion"
+        with pytest.raises(ValidationError) as caught:
+            t2m.edit(Upload(joints=motion.frames[:, :21]))
+        assert caught.value.fields == ["motion.joints.0"]
