@@ -139,18 +139,21 @@ def uploaded_handle(motion: UploadedMotion, limits: ModelLimits, encode: Encode 
         raise EditError(MOTION, f"model {limits.name!r} cannot encode uploaded motions (its bundle has no "
                                 "encoder.onnx); edit a handle of its answers instead")
     joints, fps = _bvh_joints(motion.bvh, limits) if motion.bvh is not None else _json_joints(motion, limits)
-    frames = len(joints)
+    frames, source = len(joints), "bvh" if motion.bvh is not None else "joints"
     if fps != limits.fps:
         joints = resample(joints, fps, limits.fps)
-    try:
-        features = joints_to_features(normalize_joints(joints, limits.skeleton), limits.skeleton)
-    except ValueError as error:                     # e.g. a zero-length leg: no reference skeleton to scale to
-        raise EditError((*MOTION, "bvh" if motion.bvh is not None else "joints"), str(error)) from None
-    steps = len(features) // limits.frames_per_token
+    steps = (len(joints) - 1) // limits.frames_per_token       # features are one frame fewer than the joints
     if steps * limits.frames_per_token / limits.fps < MIN_DURATION_S:
-        raise EditError((*MOTION, "bvh" if motion.bvh is not None else "joints"),
-                        f"{frames} frames at {fps:g} fps make {steps} code steps of {limits.frames_per_token} frames "
-                        f"at {limits.fps} fps; a motion lasts at least {MIN_DURATION_S:g} s")
+        raise EditError((*MOTION, source), f"{frames} frames at {fps:g} fps make {steps} code steps of "
+                        f"{limits.frames_per_token} frames at {limits.fps} fps; a motion lasts at least "
+                        f"{MIN_DURATION_S:g} s")
+    try:
+        with np.errstate(all="ignore"):               # degenerate poses are refused below, not warned about
+            features = joints_to_features(normalize_joints(joints, limits.skeleton), limits.skeleton)
+    except ValueError as error:                     # e.g. a zero-length leg: no reference skeleton to scale to
+        raise EditError((*MOTION, source), f"not a pose sequence the features can be made of: {error}") from None
+    if not np.all(np.isfinite(features)):             # coincident joints give no bone directions
+        raise EditError((*MOTION, source), "its poses are degenerate (coincident joints give no bone directions)")
     codes = encode(features[:steps * limits.frames_per_token])
     return MotionHandle(limits.name, limits.version, motion.seed, limits.guidance(None), 1.0, None,
                         _segments(motion, codes, frames, fps, limits))

@@ -157,6 +157,8 @@ REFUSALS = [
     (lambda s: {"joints": [[[0.0, 0.0, 0.0]] * 21] * 30}, ["body", "motion", "joints", 0], "21 joints"),
     (lambda s: {"joints": [[[0.0, 0.0]] * 22] * 30}, ["body", "motion", "joints", 0, 0], ""),
     (lambda s: {"joints": [[[0.0, 0.0, 0.0]] * 22]}, ["body", "motion", "joints"], ""),
+    (lambda s: {"joints": [[[0.0, 0.0, 0.0]] * 22] * 30}, ["body", "motion", "joints"], "pose"),
+    (lambda s: {"joints": s["frames"][:10]}, ["body", "motion", "joints"], "at least 0.5 s"),
     (lambda s: {"joints": [[[0.0, 0.0, 0.0]] * 22] * 121, "fps": 1}, ["body", "motion", "joints"], "120"),
     (lambda s: {"joints": s["frames"], "segments": [{"text": "a", "frames": 59}]}, ["body", "motion", "segments"],
      "59 frames"),
