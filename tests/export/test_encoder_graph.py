@@ -52,7 +52,7 @@ def test_encoder_codes_are_the_vq_encode(family: str, tmp_path: Path) -> None:
 def hifigpt_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
 
-    return build_random_hifigpt_bundle(tmp_path_factory.mktemp("hifigpt") / "bundle")
+    return build_random_hifigpt_bundle(tmp_path_factory.mktemp("hifigpt") / "bundle", check_parity=True)
 
 
 def test_random_bundles_list_a_checked_encoder(random_bundle: Path, hifigpt_bundle: Path, tmp_path: Path) -> None:
@@ -62,6 +62,8 @@ def test_random_bundles_list_a_checked_encoder(random_bundle: Path, hifigpt_bund
     for bundle in (random_bundle, masked, hifigpt_bundle):
         manifest = verify_bundle(bundle)
         assert ENCODER_GRAPH in manifest["files"]
+    card = (hifigpt_bundle / "MODEL_CARD.md").read_text()     # the export's parity check, in the card
+    assert "- encoder: codes identical to the VQ's encode True (0 differ" in card
 
 
 def test_an_encoder_of_the_wrong_layout_is_refused(random_bundle: Path, hifigpt_bundle: Path, tmp_path: Path) -> None:

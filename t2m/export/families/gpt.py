@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from t2m.export.graphs.decoder import export_decoder
-from t2m.export.graphs.encoder import ENCODER_FILE, encoder_parity, write_encoder
+from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.gpt import export_gpt_step
 from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.runs import normalisation, run_record, run_training_data
@@ -61,7 +61,7 @@ class ExportChecks:
             ]
             if "text_encoder" in self.parity:
                 lines.append(f"- text encoder: max |feature diff| {self.parity['text_encoder']['max_abs_diff']:.2e}")
-            lines.append("")
+            lines += [*encoder_card_lines(self.parity), ""]
         if self.int8:
             which = " and ".join({"gpt_step": "the GPT step", "text_encoder": "the text encoder"}.get(name, name)
                                  for name in self.int8)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from t2m.export.graphs.decoder import export_decoder
-from t2m.export.graphs.encoder import ENCODER_FILE, encoder_parity, write_encoder
+from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step, rollout_parity
 from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.text_sources import TextSource
@@ -84,7 +84,7 @@ class HiFiGPTExportChecks:
                  f"- decoder ([B, T, R] codes, some depths -1): max |feature diff| {d['max_abs_diff']:.2e}"]
         if "text_encoder" in self.parity:
             lines.append(f"- text encoder: max |feature diff| {self.parity['text_encoder']['max_abs_diff']:.2e}")
-        return "\n".join(lines + [""])
+        return "\n".join(lines + encoder_card_lines(self.parity) + [""])
 
 
 def check_hifigpt_models(vq: MotionVQVAE, model: HiFiGPT) -> None:

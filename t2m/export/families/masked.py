@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from t2m.bundle.graphs import branch_graphs
-from t2m.export.graphs.encoder import ENCODER_FILE, encoder_parity, write_encoder
+from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.masked import (
     MapVQ,
     decode_parity,
@@ -117,6 +117,7 @@ class MaskedExportChecks:
             lines.append(f"- length estimator: max |logit diff| {p['length']['max_abs_diff']:.2e}")
         if "text_encoder" in p:
             lines.append(f"- text encoder: max |feature diff| {p['text_encoder']['max_abs_diff']:.2e}")
+        lines += encoder_card_lines(p)
         for key in sorted(p):
             if key.startswith(("masked_", "residual_")):
                 role, name = key.split("_", 1)

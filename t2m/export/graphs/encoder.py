@@ -19,7 +19,7 @@ from t2m.export.graphs.export import export_graph, ort_session
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.vqvae import MotionVQVAE
 
-__all__ = ["ENCODER_FILE", "EncoderGraph", "encoder_parity", "export_encoder", "write_encoder"]
+__all__ = ["ENCODER_FILE", "EncoderGraph", "encoder_card_lines", "encoder_parity", "export_encoder", "write_encoder"]
 
 ENCODER_FILE = "encoder.onnx"   # = t2m.bundle.ENCODER_GRAPH
 
@@ -79,3 +79,12 @@ def write_encoder(vq: Any, out_dir: Path, rank: int) -> list[str]:
         return []
     export_encoder(vq, out_dir / ENCODER_FILE, rank)
     return [ENCODER_FILE]
+
+
+def encoder_card_lines(parity: dict[str, Any]) -> list[str]:
+    """The model card's line on encoder.onnx's parity (none when the export wrote no encoder)."""
+    report = parity.get("encoder")
+    if report is None:
+        return []
+    return [f"- encoder: codes identical to the VQ's encode {report['codes_identical']} ({report['mismatches']} "
+            f"differ over {report['steps']} steps)"]
