@@ -246,3 +246,20 @@ def test_the_sdk_edits_an_upload(live_server):
         with pytest.raises(ValidationError) as caught:
             t2m.edit(Upload(joints=motion.frames[:, :21]))
         assert caught.value.fields == ["motion.joints.0"]
+
+
+def test_the_masked_family_inpaints_an_upload(client, engines, source):
+    """The kinds only an inpainting family makes work on an upload's codes as on a handle's: the kept codes stay."""
+    engine = engines["masked"]
+    upload = {"joints": source["frames"], "segments": [{"text": "a person walks", "frames": 30},
+                                                       {"text": "a person keeps walking", "frames": 30}]}
+    kept = read_handle(post(client, {"motion": upload, "model": engine.limits.name})["handle"], engine.limits)
+    edits = [{"op": "in_between", "after": 0, "text": "a person turns around", "duration": 1.2, "seed": 2},
+             {"op": "body_part", "segment": 1, "part": "upper_body", "text": "a person waves", "seed": 3}]
+    answer = post(client, {"motion": upload, "model": engine.limits.name, "edits": edits})
+    segments = read_handle(answer["handle"], engine.limits).segments
+    assert [s.text for s in segments] == ["a person walks", "a person turns around", "a person waves"]
+    assert np.array_equal(segments[0].codes, kept.segments[0].codes)
+    columns = list(engine.limits.body_parts["upper_body"])
+    others = [c for c in range(segments[2].codes.shape[1]) if c not in columns]
+    assert np.array_equal(segments[2].codes[:, others], kept.segments[1].codes[:, others])
