@@ -17,7 +17,16 @@ from t2m.bundle.family import (
     unregister_family,
 )
 from t2m.bundle.files import check_files, files_table, sha256_of
-from t2m.bundle.graphs import DeclaredTensor, GraphSpec, TensorSpec, check_graph_io, expected_graphs
+from t2m.bundle.graphs import (
+    ENCODER_GRAPH,
+    DeclaredTensor,
+    GraphSpec,
+    TensorSpec,
+    bundle_graphs,
+    check_graph_io,
+    encoder_graph,
+    expected_graphs,
+)
 from t2m.bundle.manifest import (
     CAPTION_INDEX_FILE,
     COMMON_FILES,
@@ -38,6 +47,7 @@ from t2m.bundle.manifest import (
 __all__ = [
     "CAPTION_INDEX_FILE",
     "COMMON_FILES",
+    "ENCODER_GRAPH",
     "FORMAT_VERSION",
     "LENGTH_GRAPH",
     "MANIFEST_NAME",
@@ -52,9 +62,11 @@ __all__ = [
     "ModelFamily",
     "Neighbour",
     "TensorSpec",
+    "bundle_graphs",
     "check_files",
     "check_graph_io",
     "check_manifest_fields",
+    "encoder_graph",
     "expected_graphs",
     "family_names",
     "family_of",

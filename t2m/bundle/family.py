@@ -94,6 +94,7 @@ class ModelFamily:
     # "module:function" that builds its `t2m eval --bundle` Models (the lockstep families' by default; a string, as
     # training_kinds, so that t2m.bundle imports no training or export code)
     bundle_evaluation: ClassVar[str] = "t2m.export.evaluation:lockstep_bundle_models"
+    encodes: ClassVar[bool] = False     # its decoder reads codes, so a bundle may hold encoder.onnx (bundle.graphs)
 
     # ------------------------------------------------------------------ manifest and graphs (json only)
 

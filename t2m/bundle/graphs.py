@@ -14,13 +14,16 @@ from t2m.bundle.family import get_family
 from t2m.bundle.manifest import family_of
 
 __all__ = [
+    "ENCODER_GRAPH",
     "FLOAT32",
     "INT64",
     "DeclaredTensor",
     "GraphSpec",
     "TensorSpec",
     "branch_graphs",
+    "bundle_graphs",
     "check_graph_io",
+    "encoder_graph",
     "expected_graphs",
     "features_output",
     "kv_shape",
@@ -29,6 +32,8 @@ __all__ = [
 
 INT64 = "int64"
 FLOAT32 = "float32"
+# the optional graph that turns a motion's normalised features into the codes its decoder reads (uploaded motions)
+ENCODER_GRAPH = "encoder.onnx"
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,29 @@ def expected_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
     """The input/output names, types and (static where known) dims each graph must have for this manifest: the
     text graph, then the family's graphs and decoder."""
     return {"text_encoder.onnx": text_graph(manifest), **get_family(family_of(manifest)).graphs(manifest)}
+
+
+def encoder_graph(manifest: Mapping[str, Any]) -> GraphSpec | None:
+    """encoder.onnx's signature: normalised features [B, frames, D] -> `codes` of exactly the decoder's input layout
+    (so whatever it encodes the decoder reads back); None for a family whose decoder reads no codes."""
+    family = get_family(family_of(manifest))
+    if not family.encodes:
+        return None
+    decoder = family.graphs(manifest)["decoder.onnx"]
+    return GraphSpec(inputs=(TensorSpec("features", FLOAT32, (None, None, manifest["feature_dim"])),),
+                     outputs=(TensorSpec("codes", INT64, decoder.inputs[0].shape),))
+
+
+def bundle_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
+    """Every graph a bundle of this manifest holds, with its signature: the expected ones, then encoder.onnx where
+    the manifest's `files` lists it (optional: a bundle without one is valid and cannot encode uploaded motions)."""
+    graphs = expected_graphs(manifest)
+    if ENCODER_GRAPH not in manifest.get("files", {}):
+        return graphs
+    encoder = encoder_graph(manifest)
+    if encoder is None:
+        raise BundleError(f"{ENCODER_GRAPH}: family {family_of(manifest)!r} reads no codes and has no encoder graph")
+    return {**graphs, ENCODER_GRAPH: encoder}
 
 
 def _check_tensors(file: str, role: str, declared: Sequence[DeclaredTensor], expected: tuple[TensorSpec, ...]) -> None:

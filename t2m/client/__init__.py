@@ -14,6 +14,7 @@ from t2m.client.models import (
     Regenerate,
     Segment,
     SegmentSpan,
+    Upload,
 )
 
 __all__ = [
@@ -36,5 +37,6 @@ __all__ = [
            "T2MClient",
            "T2MConnectionError",
            "T2MError",
+           "Upload",
            "ValidationError",
 ]

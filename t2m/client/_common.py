@@ -16,6 +16,7 @@ from t2m.client.models import (
     Motion,
     RawResult,
     SegmentsLike,
+    Upload,
     edits_json,
     to_segments,
     warnings_of,
@@ -41,12 +42,19 @@ def request_body(segments: SegmentsLike, fmt: str, seed: int | None, guidance: f
     return body
 
 
-def edit_body(motion: Motion | str, edits: Sequence[EditLike], fmt: str, model: str | None) -> dict[str, Any]:
-    """The POST /edit body for a Motion (its handle) or a handle string."""
+def edit_body(motion: Motion | str | Upload, edits: Sequence[EditLike], fmt: str,
+              model: str | None) -> dict[str, Any]:
+    """The POST /edit body for a Motion (its handle), a handle string or an Upload (a motion to encode)."""
+    if isinstance(motion, Upload):
+        body: dict[str, Any] = {"motion": motion.to_json(), "edits": edits_json(edits), "format": fmt}
+        if model is not None:
+            body["model"] = model
+        return body
     handle = motion if isinstance(motion, str) else motion.handle
     if not handle:
-        raise T2MError("this motion has no handle to edit (a json answer of a server with POST /edit carries one)")
-    body: dict[str, Any] = {"handle": handle, "edits": edits_json(edits), "format": fmt}
+        raise T2MError("this motion has no handle to edit (a json answer of a server with POST /edit carries one; "
+                       "send Upload.of_motion(motion) to have the model encode its frames)")
+    body = {"handle": handle, "edits": edits_json(edits), "format": fmt}
     if model is not None:
         body["model"] = model
     return body

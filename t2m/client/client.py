@@ -31,7 +31,7 @@ from t2m.client._common import (
     request_body,
     stream_body,
 )
-from t2m.client.models import EditLike, FrameChunk, Health, Motion, RawResult, SegmentsLike
+from t2m.client.models import EditLike, FrameChunk, Health, Motion, RawResult, SegmentsLike, Upload
 
 __all__ = ["AsyncT2MClient", "T2MClient"]
 
@@ -75,12 +75,14 @@ class T2MClient:
         body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json(self._send("POST", "/generate", json=body).json())
 
-    def edit(self, motion: Motion | str, edits: Sequence[EditLike] = (), *, model: str | None = None) -> Motion:
-        """A motion (or its handle) with some segments changed (Regenerate(i, text=..., seed=...), Append([...]),
-        Prepend([...])) and the others kept; no edits gives the motion back. The answer has a handle of its own."""
+    def edit(self, motion: Motion | str | Upload, edits: Sequence[EditLike] = (), *,
+             model: str | None = None) -> Motion:
+        """A motion (or its handle, or an Upload of frames or a BVH file to encode) with some segments changed
+        (Regenerate(i, text=..., seed=...), Append([...]), Prepend([...])) and the others kept; no edits gives the
+        motion back. The answer has a handle of its own."""
         return Motion.from_json(self._send("POST", "/edit", json=edit_body(motion, edits, "json", model)).json())
 
-    def edit_raw(self, motion: Motion | str, edits: Sequence[EditLike], fmt: str, *,
+    def edit_raw(self, motion: Motion | str | Upload, edits: Sequence[EditLike], fmt: str, *,
                  model: str | None = None) -> RawResult:
         """The edited motion as a 'bvh' | 'glb' | 'json' file."""
         return raw_result(self._send("POST", "/edit", json=edit_body(motion, edits, fmt, model)))
@@ -162,12 +164,12 @@ class AsyncT2MClient:
         body = request_body(segments, "json", seed, guidance, temperature, top_k, model)
         return Motion.from_json((await self._send("POST", "/generate", json=body)).json())
 
-    async def edit(self, motion: Motion | str, edits: Sequence[EditLike] = (), *,
+    async def edit(self, motion: Motion | str | Upload, edits: Sequence[EditLike] = (), *,
                    model: str | None = None) -> Motion:
         body = edit_body(motion, edits, "json", model)
         return Motion.from_json((await self._send("POST", "/edit", json=body)).json())
 
-    async def edit_raw(self, motion: Motion | str, edits: Sequence[EditLike], fmt: str, *,
+    async def edit_raw(self, motion: Motion | str | Upload, edits: Sequence[EditLike], fmt: str, *,
                        model: str | None = None) -> RawResult:
         return raw_result(await self._send("POST", "/edit", json=edit_body(motion, edits, fmt, model)))
 

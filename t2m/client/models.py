@@ -22,6 +22,7 @@ __all__ = [
     "Segment",
     "SegmentSpan",
     "SegmentsLike",
+    "Upload",
     "edits_json",
     "to_segments",
     "warnings_of",
@@ -183,6 +184,38 @@ class BodyPart:
 
 
 EditLike: TypeAlias = Regenerate | Append | InBetween | BodyPart | Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class Upload:
+    """A motion to edit that the server did not make (POST /edit's `motion`): joints [T, 22, 3] in metres at `fps`,
+    or a BVH file's text with the service's skeleton; `segments` (text, frame count) pairs, or None (the server cuts
+    it); `seed` what the edits derive theirs from. The model encodes it with its encoder graph (a model without one
+    answers ValidationError)."""
+
+    joints: np.ndarray | None = None
+    fps: float | None = None
+    bvh: str | None = None
+    segments: Sequence[tuple[str, int]] | None = None
+    seed: int = 0
+
+    @classmethod
+    def of_motion(cls, motion: Motion, seed: int = 0) -> Upload:
+        """A Motion's frames with its segments (e.g. one of a server without handles, or changed by hand)."""
+        spans = [(s.text, s.end_frame - s.start_frame) for s in motion.segments] or None
+        return cls(joints=motion.frames, fps=motion.fps, segments=spans, seed=seed)
+
+    def to_json(self) -> dict[str, Any]:
+        body: dict[str, Any] = {"seed": self.seed}
+        if self.bvh is not None:
+            body["bvh"] = self.bvh
+        if self.joints is not None:
+            body["joints"] = np.asarray(self.joints, dtype=np.float64).round(6).tolist()
+        if self.fps is not None:
+            body["fps"] = float(self.fps)
+        if self.segments is not None:
+            body["segments"] = [{"text": text, "frames": int(frames)} for text, frames in self.segments]
+        return body
 
 
 def edits_json(edits: Sequence[EditLike]) -> list[dict[str, Any]]:

@@ -58,6 +58,7 @@ class GptFamily(ModelFamily):
     name = "gpt"
     title = "T2M-GPT: one code per step from a KV-cached GPT, End token, 1D VQ decoder"
     fields = GPT_FIELDS
+    encodes = True
     capabilities = Capabilities(continuous_batching=True, early_frames=True, edits=SEGMENT_EDITS)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {
         "gpt": ("t2m.model.training.train_gpt", "train the text-to-code GPT on a trained VQ's codes")}

@@ -61,6 +61,7 @@ class HiFiGPTFamily(ModelFamily):
     title = "T2M-HiFiGPT: a temporal GPT step and R residual-depth steps per 8 frames, RVQ-VAE decoder"
     fields = HIFIGPT_FIELDS
     optional_fields = OPTIONAL_FIELDS
+    encodes = True
     capabilities = Capabilities(continuous_batching=True, early_frames=True, code_depth=True,
                                 edits=SEGMENT_EDITS)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {"hifigpt": ("t2m.model.training.train_hifigpt",

@@ -169,6 +169,7 @@ class MaskedFamily(ModelFamily):
     title = "MoMask / MoGenTS: token maps by confidence re-masking + residual passes, batches run to their end"
     fields = MASKED_FIELDS
     optional_fields = OPTIONAL_FIELDS
+    encodes = True
     capabilities = Capabilities(why_not_early="the whole token map exists only at the end (masked family)",
                                 edits=SEGMENT_EDITS | {"in_between"}, inpaints=True)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {

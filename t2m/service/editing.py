@@ -265,12 +265,13 @@ class EditResult:
     edited: list[tuple[int, int]]
 
 
-def edit_in_process(engine: Any, handle: str, edits: Sequence[AnyEdit]) -> EditResult:
+def edit_in_process(engine: Any, handle: str | MotionHandle, edits: Sequence[AnyEdit]) -> EditResult:
     """An edit with an OnnxEngine directly, as POST /edit makes it (parts sampled one after the other instead of
-    through the queue: the same codes, each request drawing from its own generator). HandleError / EditError /
-    RequestLimitError as the route's 422s."""
+    through the queue: the same codes, each request drawing from its own generator); `handle` a handle string or
+    one already read (an uploaded motion's: service/uploads.py). HandleError / EditError / RequestLimitError as the
+    route's 422s."""
     limits = engine.limits
-    kept = read_handle(handle, limits)
+    kept = handle if isinstance(handle, MotionHandle) else read_handle(handle, limits)
     plan = plan_edit(kept, edits, limits)
     sampled = [engine.generate(part.request) for part in plan.parts]
     request = plan.request(kept)

@@ -20,6 +20,7 @@ from pydantic import (
     Tag,
     ValidationInfo,
     field_validator,
+    model_validator,
 )
 
 from t2m import __version__
@@ -34,6 +35,8 @@ __all__ = [
     "MAX_TEMPERATURE",
     "MAX_TEXT_CHARS",
     "MAX_TOTAL_S",
+    "MAX_UPLOAD_FPS",
+    "MAX_UPLOAD_FRAMES",
     "MIN_DURATION_S",
     "BodyPartEdit",
     "ContinueEdit",
@@ -52,6 +55,8 @@ __all__ = [
     "RequestLimits",
     "Segment",
     "SegmentSpanOut",
+    "UploadSegment",
+    "UploadedMotion",
     "model_limit_errors",
     "request_limits",
     "to_generation_request",
@@ -67,6 +72,9 @@ MAX_GUIDANCE = 10.0
 MAX_TEMPERATURE = 5.0
 MAX_MODEL_NAME_CHARS = 200
 MAX_SEED = 2**53 - 1   # the largest integer every JSON reader (JavaScript included) holds exactly
+MAX_UPLOAD_FPS = 120.0
+MAX_UPLOAD_FRAMES = int(MAX_TOTAL_S * MAX_UPLOAD_FPS) + 1   # a schema bound; the service checks frames / fps too
+MAX_BVH_CHARS = 16_000_000
 
 OutputFormat = Literal["json", "bvh", "glb"]
 
@@ -222,11 +230,56 @@ Edit = Annotated[Annotated[RegenerateEdit, Tag("regenerate")] | Annotated[Contin
                  Discriminator(_edit_kind)]
 
 
-class EditRequest(_Strict):
-    """POST /edit: change some segments of a motion the service made and keep the others' codes."""
+class UploadSegment(_Strict):
+    """A stretch of an uploaded motion and what happens in it (the text a regenerate edit keeps)."""
 
-    handle: Annotated[str, StringConstraints(min_length=1, max_length=MAX_HANDLE_FIELD_CHARS)] = Field(
-        description="The `handle` of a json answer of /generate or /edit.")
+    text: Text = Field(description="What happens in these frames.", examples=["a person walks forward"])
+    frames: Annotated[int, Field(ge=1, le=MAX_UPLOAD_FRAMES), BeforeValidator(_json_integer)] = Field(
+        description="How many of the upload's frames (at its own frame rate) it covers; the segments' frames add up "
+                    "to the upload's.")
+
+
+Joint = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class UploadedMotion(_Strict):
+    """A motion the user brings instead of a handle: `joints` (the json answer's layout) or `bvh` (a BVH file as
+    this service writes them), encoded into the model's codes by its encoder graph."""
+
+    joints: list[list[Joint]] | None = Field(
+        None, min_length=2, max_length=MAX_UPLOAD_FRAMES,
+        description="[T][22][3] joint positions in metres, Y up, the SMPL-22 joints in the order of an answer's "
+                    "`joints` (as /generate answers them).")
+    fps: float | None = Field(None, ge=1.0, le=MAX_UPLOAD_FPS,
+                              description="The joints' frame rate (null: 20); resampled to the model's. Not with bvh "
+                                          "(its Frame Time says it).")
+    bvh: Annotated[str, StringConstraints(min_length=1, max_length=MAX_BVH_CHARS)] | None = Field(
+        None, description="The text of a BVH file with this service's skeleton (its bvh answers: SMPL-22 joints "
+                          "named as t2m/motion/bvh_export.py names them, centimetres).")
+    segments: list[UploadSegment] | None = Field(
+        None, min_length=1, max_length=MAX_SEGMENTS,
+        description="Its segments in order (texts and frame counts); null: as few equal segments as the model's "
+                    "longest segment allows, each with the text 'uploaded motion'.")
+    seed: Seed = Field(0, description="The seed the edits derive theirs from where they give none (a handle's seed).")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> UploadedMotion:
+        if (self.joints is None) == (self.bvh is None):
+            raise ValueError("give exactly one of `joints` and `bvh`")
+        if self.bvh is not None and self.fps is not None:
+            raise ValueError("`fps` goes with `joints`; a BVH file's Frame Time gives its frame rate")
+        return self
+
+
+class EditRequest(_Strict):
+    """POST /edit: change some segments of a motion (one the service made: `handle`; or one the user brings:
+    `motion`) and keep the others' codes."""
+
+    handle: Annotated[str, StringConstraints(min_length=1, max_length=MAX_HANDLE_FIELD_CHARS)] | None = Field(
+        None, description="The `handle` of a json answer of /generate or /edit (or give `motion`).")
+    motion: UploadedMotion | None = Field(
+        None, description="Instead of a handle: a motion to encode with the model's encoder graph (encoder.onnx; a "
+                          "model without one answers 422). It is edited as the handle of its codes would be.")
     edits: list[Edit] = Field(
         default_factory=list, max_length=MAX_SEGMENTS,
         description="What to change: regenerate edits ({segment, text?, seed?, duration?}, each segment at most "
@@ -236,8 +289,15 @@ class EditRequest(_Strict):
                     "(/health `extra.edits`). Empty: the handle's motion "
                     "again, bit for bit (e.g. in another format).")
     format: OutputFormat = Field("json", description="json (joints, with the new handle), bvh or glb.")
-    model: ModelName | None = Field(None, description="The served model to use; null = the handle's own. Either way "
-                                                      "it must be the model (name and version) that made the handle.")
+    model: ModelName | None = Field(None, description="The served model to use; null = the handle's own (for an "
+                                                      "uploaded motion: the default model). Either way it must be "
+                                                      "the model (name and version) that made the handle.")
+
+    @model_validator(mode="after")
+    def _one_motion(self) -> EditRequest:
+        if (self.handle is None) == (self.motion is None):
+            raise ValueError("give exactly one of `handle` (a motion the service made) and `motion` (an upload)")
+        return self
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [
         {"handle": "t2m1....", "edits": [{"segment": 1, "text": "a person raises the left hand"}]},
@@ -247,7 +307,9 @@ class EditRequest(_Strict):
         {"handle": "t2m1....", "edits": [{"op": "in_between", "after": 0, "text": "a person turns around",
                                           "duration": 2.0}]},
         {"handle": "t2m1....", "edits": [{"op": "body_part", "segment": 0, "part": "upper_body",
-                                          "text": "a person waves with the right hand"}]}]})
+                                          "text": "a person waves with the right hand"}]},
+        {"motion": {"bvh": "HIERARCHY\nROOT Pelvis\n...", "segments": [{"text": "a person walks", "frames": 60}]},
+         "edits": [{"op": "append", "segments": [{"text": "a person sits down", "duration": 3.0}]}]}]})
 
 
 class EditedSegment(BaseModel):

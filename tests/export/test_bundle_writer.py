@@ -34,7 +34,7 @@ def _edit_manifest(bundle: Path, edit) -> None:
 def test_random_bundle_satisfies_the_contract_and_its_graphs_run(random_bundle):
     manifest = verify_bundle(random_bundle)
     assert set(manifest["files"]) == {"text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decoder.onnx",
-                                      "mean.npy", "std.npy", "MODEL_CARD.md"}
+                                      "encoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md"}
     assert manifest["end_id"] == manifest["codebook_size"]
     gpt = manifest["gpt"]
     # text graph on tokens from the shipped tokenizer.json: unit-length features of the declared dim

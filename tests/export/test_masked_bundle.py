@@ -59,7 +59,8 @@ def test_the_2d_bundle_verifies_with_its_graphs_and_parity_in_the_card(masked_2d
     manifest = verify_bundle(masked_2d)
     assert manifest["family"] == "masked"
     assert set(manifest["files"]) == {"text_encoder.onnx", "tokenizer.json", "masked.onnx", "residual.onnx",
-                                      "length.onnx", "decoder.onnx", "mean.npy", "std.npy", "MODEL_CARD.md"}
+                                      "length.onnx", "decoder.onnx", "encoder.onnx", "mean.npy", "std.npy",
+                                      "MODEL_CARD.md"}
     assert "gpt" not in manifest and "end_id" not in manifest
     typed = read_manifest(masked_2d)
     assert typed.family == "masked" and type(typed.settings).__name__ == "MaskedSettings"

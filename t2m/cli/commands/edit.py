@@ -7,7 +7,9 @@ machine, no server needed (POST /edit's path: t2m.service.editing.edit_in_proces
         -o longer.glb
 
 The answer's `handle` names its model (name and version): --model must be a bundle of that model (default:
-T2M_MODEL_DIR, else the embedded default model). --edits takes POST /edit's `edits` list as JSON; --segment with
+T2M_MODEL_DIR, else the embedded default model). A json motion without a handle (its `frames`, `fps` and
+`segments`) or a .bvh file this service wrote is uploaded instead: encoded by the model's encoder.onnx as POST /edit
+encodes a `motion` (a bundle without one cannot). --edits takes POST /edit's `edits` list as JSON; --segment with
 --text / --seed / --duration is one regenerate edit; both may be given (the --segment edit comes last).
 """
 from __future__ import annotations
@@ -26,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "edit", help="edit a saved json motion (its handle) without a server",
         description="Regenerate segments of a saved json motion (new text, seed or duration) or add segments, "
                     "keeping the other segments' codes, and write the result as .json, .bvh or .glb.")
-    parser.add_argument("motion", type=Path, help="a json answer holding a `handle`")
+    parser.add_argument("motion", type=Path, help="a json answer (its `handle`, else its frames) or a .bvh file")
     parser.add_argument("--segment", type=int, default=None, help="index of the segment to regenerate (0 = first)")
     parser.add_argument("--text", default=None, help="its new text (default: its own)")
     parser.add_argument("--seed", type=int, default=None, help="its seed (default: derived from the motion's)")
@@ -57,6 +59,31 @@ def _edits(args: argparse.Namespace) -> list[Any]:
     return edits
 
 
+def _source(path: Path) -> dict[str, Any]:
+    """POST /edit's `handle` of a saved json answer, else its `motion`: a json answer's frames (with its segments'
+    texts and frame counts) or a .bvh file's text."""
+    from t2m.cli.main import CliError
+
+    try:
+        text = path.read_text(encoding="utf-8")
+        saved = text if path.suffix.lower() == ".bvh" else json.loads(text)
+    except (OSError, ValueError) as error:
+        raise CliError(f"{path}: not a readable json or BVH motion ({error})") from None
+    if isinstance(saved, str):
+        return {"motion": {"bvh": saved}}
+    if isinstance(saved, dict) and isinstance(saved.get("handle"), str):
+        return {"handle": saved["handle"]}
+    if not isinstance(saved, dict) or "frames" not in saved:
+        raise CliError(f"{path}: holds neither a handle nor frames (a json answer of /generate, /edit or t2m "
+                       "generate has both)")
+    spans = saved.get("segments")
+    segments = ([{"text": s["text"], "frames": s["end_frame"] - s["start_frame"]} for s in spans]
+                if isinstance(spans, list) and spans
+                and all(isinstance(s, dict) and {"text", "start_frame", "end_frame"} <= s.keys() for s in spans)
+                else None)
+    return {"motion": {"joints": saved["frames"], "fps": saved.get("fps"), "segments": segments}}
+
+
 def _edit(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
@@ -68,14 +95,7 @@ def _edit(args: argparse.Namespace) -> int:
     if fmt is None:
         raise CliError(f"{args.output}: the suffix must be one of {', '.join(FORMATS)} (it picks the format)")
     try:
-        saved = json.loads(args.motion.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as error:
-        raise CliError(f"{args.motion}: not a readable json motion ({error})") from None
-    handle = saved.get("handle") if isinstance(saved, dict) else None
-    if not isinstance(handle, str):
-        raise CliError(f"{args.motion}: holds no handle (a json answer of /generate, /edit or t2m generate has one)")
-    try:
-        body = EditRequest.model_validate({"handle": handle, "edits": _edits(args), "format": fmt})
+        body = EditRequest.model_validate({**_source(args.motion), "edits": _edits(args), "format": fmt})
     except ValidationError as error:
         raise CliError(_one_line(error.errors())) from None
     if not args.output.parent.exists():
@@ -87,11 +107,16 @@ def _edit(args: argparse.Namespace) -> int:
     from t2m.service.formats import render
     from t2m.service.handles import HandleError
     from t2m.service.settings import Settings
+    from t2m.service.uploads import uploaded_handle
 
     engine = OnnxEngine.load(args.model if args.model is not None else Settings().bundle_path)
     try:
-        result = edit_in_process(engine, body.handle, body.edits)
-    except (HandleError, EditError, RequestLimitError) as error:
+        handle = body.handle if body.motion is None else uploaded_handle(body.motion, engine.limits, engine.encode)
+        assert handle is not None
+        result = edit_in_process(engine, handle, body.edits)
+    except EditError as error:               # its field, as POST /edit's 422 names it
+        raise CliError(f"{'.'.join(str(part) for part in error.loc[1:])}: {error}") from None
+    except (HandleError, RequestLimitError) as error:
         raise CliError(str(error)) from None
     extra = {"edited": [{"segment": index, "seed": seed} for index, seed in result.edited]}
     args.output.write_bytes(render(result.motion, fmt, engine.limits, result.handle, extra).body)

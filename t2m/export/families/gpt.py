@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from t2m.export.graphs.decoder import export_decoder
+from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.gpt import export_gpt_step
 from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.runs import normalisation, run_record, run_training_data
@@ -60,7 +61,7 @@ class ExportChecks:
             ]
             if "text_encoder" in self.parity:
                 lines.append(f"- text encoder: max |feature diff| {self.parity['text_encoder']['max_abs_diff']:.2e}")
-            lines.append("")
+            lines += [*encoder_card_lines(self.parity), ""]
         if self.int8:
             which = " and ".join({"gpt_step": "the GPT step", "text_encoder": "the text encoder"}.get(name, name)
                                  for name in self.int8)
@@ -111,6 +112,7 @@ def export_bundle(
     notes: str = "",
     check_parity: bool = False,
     parity_steps: int = 50,
+    encoder: bool = True,
 ) -> tuple[dict, ExportChecks]:
     """Export ``vq`` + ``gpt`` + a text encoder as a verified bundle in ``out_dir``; return (manifest, checks).
 
@@ -130,7 +132,7 @@ def export_bundle(
             staging, vq=vq.eval(), gpt=gpt.eval(), mean=mean, std=std, text_source=text_source, name=name,
             version=version, unconditional_branch=unconditional_branch, default_guidance=default_guidance,
             training_data=training_data, license=license, int8=int8, notes=notes, check_parity=check_parity,
-            parity_steps=parity_steps)
+            parity_steps=parity_steps, encoder=encoder)
         prepare_out_dir(out_dir)
         for file in sorted(staging.iterdir(), key=lambda f: f.name == "manifest.json"):  # manifest last
             file.replace(out_dir / file.name)
@@ -142,7 +144,7 @@ def export_bundle(
 def _export_into(
     out_dir: Path, *, vq: MotionVQVAE, gpt: MotionGPT, mean: np.ndarray, std: np.ndarray, text_source: TextSource,
     name: str, version: str, unconditional_branch: bool, default_guidance: float, training_data: Mapping[str, str],
-    license: str, int8: str, notes: str, check_parity: bool, parity_steps: int,
+    license: str, int8: str, notes: str, check_parity: bool, parity_steps: int, encoder: bool = True,
 ) -> tuple[dict, ExportChecks]:
     from t2m.export.kit.parity import bundle_parity
     from t2m.export.writing.quantize import gpt_int8_report, text_int8_report
@@ -155,6 +157,8 @@ def _export_into(
     export_gpt_step(gpt, out_dir / "gpt_step.onnx")
     log.info("exporting the decoder")
     export_decoder(vq, mean, std, out_dir / "decoder.onnx")
+    rank = 2 if vq.config.quantizer != "residual" else 3   # the decoder's codes: [B, T] or [B, T, R]
+    encoders = write_encoder(vq, out_dir, rank) if encoder else []
     np.save(out_dir / "mean.npy", np.asarray(mean, dtype=np.float32))
     np.save(out_dir / "std.npy", np.asarray(std, dtype=np.float32))
 
@@ -180,6 +184,8 @@ def _export_into(
         log.info("checking onnxruntime against PyTorch (float32)")
         checks.parity = bundle_parity(out_dir, vq, gpt, text_source.encoder,
                                       guidance=3.0 if unconditional_branch else 1.0, steps=parity_steps)
+        if encoders:
+            checks.parity["encoder"] = encoder_parity(vq, out_dir / ENCODER_FILE, rank)
         _check_parity(checks.parity)
     if int8 in ("all", "text"):
         checks.int8["text_encoder"] = quantize_in_place(
@@ -194,7 +200,7 @@ def _export_into(
     (out_dir / "MODEL_CARD.md").write_text(render_model_card(manifest, card_notes), encoding="utf-8")
     files = {file: out_dir / file for file in
              ("text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decoder.onnx", "mean.npy", "std.npy",
-              "MODEL_CARD.md")}
+              "MODEL_CARD.md", *encoders)}
     return write_bundle(out_dir, files, manifest), checks
 
 

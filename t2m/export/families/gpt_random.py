@@ -36,6 +36,7 @@ def build_random_bundle(
     seed: int = 0,
     name: str = "t2m-random-test",
     version: str = "0.0.0",
+    encoder: bool = True,
 ) -> Path:
     """A tiny random-weight bundle that satisfies the contract (for service tests): ~1 s with the tiny text graph.
 
@@ -78,5 +79,6 @@ def build_random_bundle(
         license="Apache-2.0",
         int8=int8,
         notes="Random weights: this bundle exists to test the service and produces meaningless motion.",
+        encoder=encoder,
     )
     return Path(out_dir)

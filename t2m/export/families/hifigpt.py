@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from t2m.export.graphs.decoder import export_decoder
+from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step, rollout_parity
 from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.text_sources import TextSource
@@ -83,7 +84,7 @@ class HiFiGPTExportChecks:
                  f"- decoder ([B, T, R] codes, some depths -1): max |feature diff| {d['max_abs_diff']:.2e}"]
         if "text_encoder" in self.parity:
             lines.append(f"- text encoder: max |feature diff| {self.parity['text_encoder']['max_abs_diff']:.2e}")
-        return "\n".join(lines + [""])
+        return "\n".join(lines + encoder_card_lines(self.parity) + [""])
 
 
 def check_hifigpt_models(vq: MotionVQVAE, model: HiFiGPT) -> None:
@@ -139,7 +140,7 @@ def export_hifigpt_bundle(
     out_dir: str | Path, *, vq: MotionVQVAE, model: HiFiGPT, mean: np.ndarray, std: np.ndarray,
     text_source: TextSource, name: str, version: str, training_data: Mapping[str, str], license: str,
     unconditional_branch: bool = True, default_guidance: float = 3.0, notes: str = "", check_parity: bool = True,
-    int8: frozenset[str] = frozenset(),
+    int8: frozenset[str] = frozenset(), encoder: bool = True,
 ) -> tuple[dict[str, Any], HiFiGPTExportChecks]:
     """Export, check against PyTorch, write and verify a hifigpt bundle; returns (manifest, checks). ``int8`` names
     graphs of INT8_GRAPHS to quantise after the float32 checks (each one's price measured into the card)."""
@@ -161,6 +162,7 @@ def export_hifigpt_bundle(
     export_temporal_step(model, out_dir / "temporal_step.onnx")
     export_residual_step(model, out_dir / "residual_step.onnx")
     export_decoder(vq, mean, std, out_dir / "decoder.onnx")
+    encoders = write_encoder(vq, out_dir, 3) if encoder else []   # the decoder's codes: [B, T, R]
     np.save(out_dir / "mean.npy", np.asarray(mean, dtype=np.float32))
     np.save(out_dir / "std.npy", np.asarray(std, dtype=np.float32))
     manifest: dict[str, Any] = {
@@ -178,10 +180,12 @@ def export_hifigpt_bundle(
     if check_parity:
         log.info("checking onnxruntime against PyTorch (float32)")
         checks.parity = _parity(out_dir, vq, model, text_source, default_guidance if unconditional_branch else 1.0)
+        if encoders:
+            checks.parity["encoder"] = encoder_parity(vq, out_dir / ENCODER_FILE, 3)
     _quantize(out_dir, int8, model, manifest, checks, default_guidance if unconditional_branch else 1.0)
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_hifigpt_model_card(manifest, card_notes), encoding="utf-8")
-    names = [*GRAPHS, "mean.npy", "std.npy", "MODEL_CARD.md"]
+    names = [*GRAPHS, *encoders, "mean.npy", "std.npy", "MODEL_CARD.md"]
     return write_bundle(out_dir, {name: out_dir / name for name in names}, manifest), checks
 
 
@@ -214,7 +218,7 @@ def export_hifigpt_from_runs(
     vq_run: str | Path, hifigpt_run: str | Path, out_dir: str | Path, *, name: str | None = None,
     version: str = "0.1.0", model_card: str | Path | None = None, data_summary: str | Path | None = None,
     default_guidance: float | None = None, check_parity: bool = True, text_source: TextSource | None = None,
-    int8: frozenset[str] = frozenset(),
+    int8: frozenset[str] = frozenset(), encoder: bool = True,
 ) -> tuple[dict[str, Any], HiFiGPTExportChecks]:
     """A verified hifigpt bundle from a residual vq run and a hifigpt run. ``text_source`` replaces building the
     run's text encoder (tests)."""

@@ -52,6 +52,7 @@ def build_random_hifigpt_bundle(
     seed: int = 0,
     name: str = "t2m-random-hifigpt-test",
     version: str = "0.0.0",
+    encoder: bool = True,
 ) -> Path:
     """A tiny random-weight T2M-HiFiGPT bundle (service tests), with the tiny text graph: a second or two. The modules
     are random_hifigpt_models(...) with the same arguments (tests rebuild them for the PyTorch reference)."""
@@ -67,5 +68,5 @@ def build_random_hifigpt_bundle(
                                         "attribution": "Random weights for tests; not a trained model."},
         license="Apache-2.0", default_guidance=default_guidance,
         notes="Random weights: this bundle exists to test the service and produces meaningless motion.",
-        check_parity=check_parity)
+        check_parity=check_parity, encoder=encoder)
     return Path(out_dir)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from t2m.bundle.graphs import branch_graphs
+from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.masked import (
     MapVQ,
     decode_parity,
@@ -116,6 +117,7 @@ class MaskedExportChecks:
             lines.append(f"- length estimator: max |logit diff| {p['length']['max_abs_diff']:.2e}")
         if "text_encoder" in p:
             lines.append(f"- text encoder: max |feature diff| {p['text_encoder']['max_abs_diff']:.2e}")
+        lines += encoder_card_lines(p)
         for key in sorted(p):
             if key.startswith(("masked_", "residual_")):
                 role, name = key.split("_", 1)
@@ -260,6 +262,7 @@ def export_masked_bundle(
     text_source: TextSource, name: str, version: str, training_data: Mapping[str, str], license: str,
     decoding: MaskedDecoding = MaskedDecoding(), unconditional_branch: bool = True, notes: str = "",
     check_parity: bool = True, int8: frozenset[str] = frozenset(), branches: Sequence[TokenBranch] = (),
+    encoder: bool = True,
 ) -> tuple[dict[str, Any], MaskedExportChecks]:
     """Export, check against PyTorch, write and verify a masked bundle; returns (manifest, checks).
 
@@ -312,6 +315,7 @@ def export_masked_bundle(
         export_length(length, out_dir / "length.onnx")
         names.append("length.onnx")
     export_joint_decoder(vq, mean, std, out_dir / "decoder.onnx")
+    names += write_encoder(vq, out_dir, 4) if encoder and not branches else []   # the decoder's maps [B, T, C, R]
     np.save(out_dir / "mean.npy", np.asarray(mean, dtype=np.float32))
     np.save(out_dir / "std.npy", np.asarray(std, dtype=np.float32))
     layers = map_shape(vq)[1]
@@ -338,6 +342,8 @@ def export_masked_bundle(
     if check_parity:
         log.info("checking onnxruntime against PyTorch (float32)")
         checks.parity = _parity(out_dir, vq, masked, residual, length, text_source, mean, std, decoding, branches)
+        if ENCODER_FILE in names and not isinstance(vq, FusedVQVAE):
+            checks.parity["encoder"] = encoder_parity(vq, out_dir / ENCODER_FILE, 4)
     _quantize(out_dir, int8, masked, residual, manifest, checks, decoding)
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_masked_model_card(manifest, card_notes), encoding="utf-8")

@@ -69,6 +69,7 @@ def build_random_masked_bundle(
     seed: int = 0,
     name: str = "t2m-random-masked-test",
     version: str = "0.0.0",
+    encoder: bool = True,
 ) -> Path:
     """A tiny random-weight masked-family bundle (service tests), with the tiny text graph: a few seconds.
 
@@ -87,5 +88,5 @@ def build_random_masked_bundle(
         license="Apache-2.0", decoding=MaskedDecoding(steps=steps, guidance=guidance,
                                                       residual_guidance=residual_guidance),
         notes="Random weights: this bundle exists to test the service and produces meaningless motion.",
-        check_parity=check_parity)
+        check_parity=check_parity, encoder=encoder)
     return Path(out_dir)

@@ -18,9 +18,9 @@ from t2m.bundle import (
     BundleError,
     DeclaredTensor,
     GraphSpec,
+    bundle_graphs,
     check_files,
     check_graph_io,
-    expected_graphs,
     parse_manifest,
     read_manifest_dict,
     required_files,
@@ -84,7 +84,7 @@ def verify_bundle(bundle_dir: str | Path, *, check_hashes: bool = True) -> dict[
     parse_manifest(manifest)
     check_files(bundle_dir, manifest["files"], check_hashes=check_hashes, required=required_files(manifest))
     check_arrays_and_tokenizer(bundle_dir, manifest)
-    for name, spec in expected_graphs(manifest).items():
+    for name, spec in bundle_graphs(manifest).items():
         check_graph(bundle_dir / name, spec)
     return manifest
 

@@ -2,7 +2,8 @@
 
 A bundle is all the service knows about a model, so everything the sampler relies on is checked here, once, at
 start-up: the manifest's fields, each listed file's size and sha256 (t2m.bundle), and each graph's declared inputs
-and outputs as onnxruntime sees them against the contract's signatures (t2m.bundle.expected_graphs), then what the
+and outputs as onnxruntime sees them against the contract's signatures (t2m.bundle.bundle_graphs: the optional
+encoder.onnx too where the manifest lists it), then what the
 family's served loop needs beyond the contract (its `check_servable`).
 """
 from __future__ import annotations
@@ -15,12 +16,13 @@ import numpy as np
 import onnxruntime as ort
 
 from t2m.bundle import (
+    ENCODER_GRAPH,
     BundleError,
     DeclaredTensor,
     Manifest,
+    bundle_graphs,
     check_files,
     check_graph_io,
-    expected_graphs,
     family_names,
     get_family,
     parse_manifest,
@@ -79,7 +81,7 @@ def _check_session(session: ort.InferenceSession, file: str, manifest: Manifest)
         return [DeclaredTensor(arg.name, _ORT_DTYPES.get(arg.type, arg.type), tuple(arg.shape)) for arg in args]
 
     check_graph_io(file, declared(session.get_inputs()), declared(session.get_outputs()),
-                   expected_graphs(manifest.raw)[file])
+                   bundle_graphs(manifest.raw)[file])
 
 
 @dataclass
@@ -95,6 +97,11 @@ class Bundle:
     std: np.ndarray
     sessions: dict[str, ort.InferenceSession] = field(default_factory=dict)
     execution: Execution = field(default_factory=Execution)
+
+    @property
+    def encoder_session(self) -> ort.InferenceSession | None:
+        """encoder.onnx (features -> codes) where the bundle has one, else None: uploaded motions are refused."""
+        return self.sessions.get(ENCODER_GRAPH)
 
     @property
     def tokenizer_file(self) -> Path:
@@ -126,7 +133,7 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
     get_family(manifest.family).check_servable(manifest)
     options = session_options(intra_op_threads, inter_op_threads)
     sessions = {}
-    for file in expected_graphs(raw):
+    for file in bundle_graphs(raw):
         sessions[file] = open_session(path / file, options, execution)
         _check_session(sessions[file], file, manifest)
     log.info("loaded bundle %s %s (%s) from %s", manifest.name, manifest.version, manifest.family, path)

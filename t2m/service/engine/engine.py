@@ -100,7 +100,8 @@ class OnnxEngine:
                      **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
             ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits,
             inpaints=self.capabilities.inpaints,
-            body_parts=dict(getattr(self.codes, "body_parts", {})) if "body_part" in self.capabilities.edits else {})
+            body_parts=dict(getattr(self.codes, "body_parts", {})) if "body_part" in self.capabilities.edits else {},
+            encodes=bundle.encoder_session is not None and code_layout(self.codes) is not None)
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -215,6 +216,18 @@ class OnnxEngine:
         except Exception as error:
             log.exception("decoding failed")
             return error
+
+    def encode(self, features: np.ndarray) -> np.ndarray:
+        """Features [frames, D] (frames a multiple of frames_per_token) -> normalised with the bundle's mean/std ->
+        codes [frames / f, *step shape] by its encoder.onnx, the layout its decoder reads (an uploaded motion:
+        service/uploads.py)."""
+        session = self.bundle.encoder_session
+        layout = self.limits.codes
+        if session is None or layout is None:
+            raise ValueError(f"model {self.limits.name!r} has no encoder graph")
+        normalised = (np.asarray(features, dtype=np.float32) - self.bundle.mean) / self.bundle.std
+        codes = session.run(["codes"], {"features": normalised.astype(np.float32)[None]})[0][0]
+        return np.asarray(codes, dtype=np.int64).reshape(len(codes), *layout.shape)
 
     def compose(self, request: GenerationRequest, segment_codes: Sequence[np.ndarray]) -> Motion:
         """The motion of given codes, one array per segment of `request` (an edit: kept segments' codes from a

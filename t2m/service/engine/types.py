@@ -99,6 +99,7 @@ class ModelLimits:
     edits: frozenset[str] = frozenset()   # the edit kinds POST /edit serves for it (its family's capabilities)
     inpaints: bool = False   # its edits fill masked tokens with the kept ones around them (the masked family)
     body_parts: dict[str, tuple[int, ...]] = field(default_factory=dict)   # body_part edits: part -> token columns
+    encodes: bool = False    # its bundle has encoder.onnx: POST /edit takes uploaded motions (service/uploads.py)
 
     def guidance(self, requested: float | None = None) -> float:
         """The guidance scale to use: the requested one, else the model's default (1 = off for a model without a

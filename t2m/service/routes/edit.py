@@ -1,4 +1,5 @@
-"""POST /edit: a motion the service made (its answer's `handle`) with some segments sampled again or added (a gap
+"""POST /edit: a motion the service made (its answer's `handle`) or one the user uploads (`motion`, encoded into
+codes: service/uploads.py) with some segments sampled again or added (a gap
 filled in between, a body part regenerated, where the family inpaints), the other segments' codes kept, all decoded
 once: the frames before the edit and outside the decoder's reach of it are the
 handle's bit for bit, the frames after it the same motion rigidly moved (docs/api.md states the exact rule).
@@ -20,6 +21,7 @@ from t2m.service.handles import HandleError, handle_model, read_handle
 from t2m.service.registry import ServedModel
 from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
 from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
+from t2m.service.uploads import uploaded_handle
 
 __all__ = ["router"]
 
@@ -43,10 +45,10 @@ def _model_of(body: EditRequest, state: ServiceState) -> ServedModel:
     """The model the body names, else the served model of the name the handle names (its version and everything
     else are checked by read_handle against that model)."""
     assert state.models is not None
-    if body.model is not None:
+    if body.model is not None or body.handle is None:       # an upload without `model`: the default model
         model = state.models.get(body.model)
         if model is None:
-            raise RequestValidationError([unknown_model_error(body.model, state.models.names)])
+            raise RequestValidationError([unknown_model_error(body.model or "", state.models.names)])
         return model
     try:
         name, version = handle_model(body.handle)
@@ -71,13 +73,21 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     bit for bit, frames after it the same motion rigidly moved (the root's path is a running sum; docs/api.md gives
     the rule). No edits answers the handle's motion again, bit for bit. The model must be the one (name and version)
     that made the handle; a family answers 422 for an edit kind it does not support (GET /health: a model's
-    `extra.edits`). A 422 names the field: `handle` for a handle that is corrupted, altered, out of the model's
-    ranges or another model's (the message names the part: `handle.checksum`, `handle.segments.0.codes`,
-    `handle.model`), `edits.<i>...` for an edit the handle or the model does not allow."""
+    `extra.edits`). Instead of a handle, `motion` uploads a motion (JSON joints or a BVH file, with its segments'
+    texts and frames), encoded by the model's encoder.onnx into codes that are then edited as a handle's
+    (service/uploads.py; /health `extra.uploads`). A 422 names the field: `handle` for a handle that is corrupted,
+    altered, out of the model's ranges or another model's (the message names the part: `handle.checksum`,
+    `handle.segments.0.codes`, `handle.model`), `motion...` for an upload the model cannot encode or that is out of
+    the limits, `edits.<i>...` for an edit the handle or the model does not allow."""
     model = _model_of(body, state)
     limits = model.limits
     try:
-        handle = read_handle(body.handle, limits)
+        if body.motion is not None:
+            handle = await run_in_threadpool(uploaded_handle, body.motion, limits,
+                                             getattr(model.engine, "encode", None))
+        else:
+            assert body.handle is not None
+            handle = read_handle(body.handle, limits)
         plan = plan_edit(handle, body.edits, limits)
     except HandleError as error:
         raise _handle_error(error) from None

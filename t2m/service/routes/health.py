@@ -39,4 +39,4 @@ def _details(model: ServedModel, settings: Settings) -> ModelDetails:
                         length_conditioning=limits.length_conditioning,
                         limits=request_limits(limits, settings.max_body_bytes, settings.request_timeout_s),
                         extra={**limits.details, "load_seconds": model.load_seconds,
-                               "edits": sorted(limits.edits)})
+                               "edits": sorted(limits.edits), "uploads": limits.encodes})
