@@ -332,13 +332,18 @@ def test_a_segment_is_edited_from_the_timeline(server, browser):
         assert np.array_equal(edited[:kept], handles_motion[:kept])
     assert not np.array_equal(edited[spans[2][0]:], original[spans[2][0]:])   # the edit did change the segment
     browser.screenshot(_artifacts_dir() / "viewer-edit.png")
+    # A download now is the edited motion: its handle with no edits, as BVH.
+    browser.click("#download-bvh")
+    browser.wait_for("(document.body.dataset.lastDownload || '').startsWith('motion.bvh')", timeout_s=120)
+    download = json.loads(_requests_to(browser, "/edit")[-1]["request"]["postData"])
+    assert download == {"handle": answer["handle"], "edits": [], "format": "bvh"}
 
     # A re-roll: the same segment again with a new random seed, sent with the edited motion's handle.
     browser.click("#edit-reroll")
     state = browser.wait_for("(document.body.dataset.edits === '2' || document.body.dataset.state === 'error')"
                              " && document.body.dataset.state", timeout_s=120)
     assert state == "ready", browser.evaluate("document.getElementById('message').textContent")
-    second = json.loads(_requests_to(browser, "/edit")[1]["request"]["postData"])
+    second = json.loads(_requests_to(browser, "/edit")[2]["request"]["postData"])
     assert second["handle"] == answer["handle"] != end["handle"]
     assert [set(e) for e in second["edits"]] == [{"segment", "seed"}] and second["edits"][0]["segment"] == 2
     assert _timeline(browser) == [*texts[:2], new_text]
@@ -353,3 +358,46 @@ def test_a_segment_is_edited_from_the_timeline(server, browser):
     assert browser.evaluate("document.getElementById('edit-text').classList.contains('invalid')")
     assert _timeline(browser) == [*texts[:2], new_text]   # the motion shown is kept
     assert [e for e in browser.console_errors() if "422" not in e] == []
+
+
+def test_the_upper_body_is_regenerated_where_the_model_edits_body_parts(browser, tmp_path):
+    """The masked model (body_part in /health `extra.edits`): "upper body only" is enabled, and a re-roll with it
+    ticked sends a body_part edit of the selected segment; the edited motion replaces the shown one."""
+    masked = REPO / "t2m" / "bundles" / "masked"
+    if not (masked / "manifest.json").exists():
+        pytest.skip("the masked model is not in t2m/bundles/masked")
+    with running_server(masked, log_dir=tmp_path / "server") as live:
+        browser.page.send("Network.enable")
+        browser.navigate(live.url + "/")
+        browser.wait_for("document.getElementById('server-status').classList.contains('ready')", timeout_s=60)
+        browser.type_into("#seed", "3")
+        browser.click("#generate")
+        state = browser.wait_for("['ready', 'error'].includes(document.body.dataset.state)"
+                                 " && document.body.dataset.state", timeout_s=120)
+        assert state == "ready", browser.evaluate("document.getElementById('message').textContent")
+        texts = _timeline(browser)
+        assert len(texts) == 2
+        assert "body_part" in browser.evaluate("document.body.dataset.editKinds").split(",")
+        browser.click("#segment-strip span:nth-child(2)")
+        browser.wait_for("document.body.dataset.selected === '1'")
+        assert browser.evaluate("document.getElementById('edit-upper').disabled") is False
+        browser.click("#edit-upper")
+        assert browser.evaluate("document.getElementById('edit-upper').checked") is True
+        frames_before = browser.evaluate("document.body.dataset.frames")
+        browser.click("#edit-reroll")
+        state = browser.wait_for("(document.body.dataset.edits === '1' || document.body.dataset.state === 'error')"
+                                 " && document.body.dataset.state", timeout_s=120)
+        assert state == "ready", browser.evaluate("document.getElementById('message').textContent")
+        (request,) = _requests_to(browser, "/edit")
+        edit = json.loads(request["request"]["postData"])
+        lines = _response_body(browser, _requests_to(browser, "/generate")[-1]).splitlines()
+        generated = [f for m in map(json.loads, filter(str.strip, lines)) if m["type"] == "frames" for f in m["frames"]]
+        assert json.loads(_response_body(browser, request))["frames"] != generated   # the edit changed the motion
+        assert [{k: v for k, v in e.items() if k != "seed"} for e in edit["edits"]] == [
+            {"op": "body_part", "segment": 1, "part": "upper_body"}]
+        assert isinstance(edit["edits"][0]["seed"], int)
+        assert browser.evaluate("document.body.dataset.frames") == frames_before   # the same spans
+        assert _timeline(browser) == texts
+        assert "(upper body)" in browser.evaluate("document.getElementById('message').textContent")
+        browser.screenshot(_artifacts_dir() / "viewer-edit-upper-body.png")
+        assert browser.console_errors() == []
