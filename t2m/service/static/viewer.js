@@ -10,7 +10,8 @@
  * Under the player, the timeline shows the motion's segments (one block per segment, as wide as its frames). A click
  * selects one; the edit bar then regenerates it (a new text, or a new random seed; just the upper body where the model
  * inpaints body parts) through POST /edit with the last answer's handle, and the edited motion replaces the shown one
- * (its new handle kept for the next edit). <body data-selected data-edits> report the selection and the edits made.
+ * (its new handle kept for the next edit). <body data-handle data-selected data-edits> report the handle of the
+ * motion shown, the selection and the edits made.
  */
 (function () {
   'use strict';
@@ -370,7 +371,10 @@
     document.body.dataset.frames = String(frames.length);
     document.body.dataset.framesAtStart = String(frames.length);
     document.body.dataset.state = 'streaming';
-    refreshEditPanel();
+    state.handle = null; // no edits until the motion has arrived whole (finishMotion: its handle)
+    document.body.dataset.handle = '';
+    if (request) selectSegment(-1); // a new generation; an edit keeps the selected segment
+    else refreshEditPanel();
   }
 
   function appendFrames(frames) {
@@ -387,6 +391,7 @@
     state.streaming = false;
     state.currentSegment = -2;
     state.handle = end.handle || null;
+    document.body.dataset.handle = state.handle || '';
     if (state.selected >= motion.segments.length) state.selected = -1;
     buildSegmentStrip(motion.segments, motion.frames.length);
     showSegmentAt(Math.max(state.frame, 0));
@@ -714,8 +719,8 @@
       return;
     }
     ui.generate.disabled = true;
-    state.handle = null; // a new motion: no edits until it has arrived whole
-    selectSegment(-1);
+    state.busy = true; // no edit meanwhile: its answer would race this one
+    refreshEditPanel();
     document.body.dataset.state = 'loading';
     showMessage('Generating…');
     showWarnings([]);
@@ -739,6 +744,8 @@
       document.body.dataset.state = 'error';
     } finally {
       ui.generate.disabled = false;
+      state.busy = false;
+      refreshEditPanel();
     }
   }
 
