@@ -75,7 +75,7 @@
     request: null, // the /generate request body that produced it, with the seed the server used (null: an edit)
     handle: null, // the last json answer's handle: what POST /edit takes (null while streaming or none)
     selected: -1, // the segment selected on the timeline for editing
-    busy: false, // an edit request is on its way
+    busy: false, // a generation or an edit is on its way (no edit meanwhile)
     playing: true,
     clock: 0, // seconds into the motion
     frame: -1,
