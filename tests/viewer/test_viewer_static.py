@@ -40,4 +40,6 @@ def test_viewer_files_reference_nothing_external():
 
 def test_page_calls_only_the_documented_endpoints():
     script = (STATIC / "viewer.js").read_text()
-    assert set(re.findall(r"fetch\('([^']+)'", script)) == {"generate", "health"}
+    # fetch('health'); postJson('generate' | 'edit', body): relative paths, so a proxy's path prefix is kept
+    assert set(re.findall(r"(?:fetch|postJson)\('([^']+)'", script)) == {"generate", "edit", "health"}
+    assert "fetch(path," in script and "fetch('/" not in script

@@ -6,6 +6,12 @@
  * true, newline-delimited JSON): playback starts with the first frames and waits at the newest frame for the next.
  * The page reports its state on <body data-state data-frames data-frame data-frames-at-start> (state: loading,
  * streaming, ready, error) so scripts and tests can follow it without scraping the UI.
+ *
+ * Under the player, the timeline shows the motion's segments (one block per segment, as wide as its frames). A click
+ * selects one; the edit bar then regenerates it (a new text, or a new random seed; just the upper body where the model
+ * inpaints body parts) through POST /edit with the last answer's handle, and the edited motion replaces the shown one
+ * (its new handle kept for the next edit). <body data-handle data-selected data-edits> report the handle of the
+ * motion shown, the selection and the edits made.
  */
 (function () {
   'use strict';
@@ -53,13 +59,23 @@
     strip: $('segment-strip'),
     frameLabel: $('frame-label'),
     follow: $('follow'),
+    playhead: $('playhead'),
+    editPanel: $('edit-panel'),
+    editTitle: $('edit-title'),
+    editText: $('edit-text'),
+    editUpper: $('edit-upper'),
+    editRegenerate: $('edit-regenerate'),
+    editReroll: $('edit-reroll'),
   };
   const ctx = ui.canvas.getContext('2d');
 
   const state = {
     motion: null, // the motion being shown: the json answer's fields, its frames growing while it streams
     streaming: false, // more frames are on their way
-    request: null, // the request body that produced it, with the seed the server used
+    request: null, // the /generate request body that produced it, with the seed the server used (null: an edit)
+    handle: null, // the last json answer's handle: what POST /edit takes (null while streaming or none)
+    selected: -1, // the segment selected on the timeline for editing
+    busy: false, // a generation or an edit is on its way (no edit meanwhile)
     playing: true,
     clock: 0, // seconds into the motion
     frame: -1,
@@ -261,6 +277,7 @@
     ui.slider.value = String(frame);
     ui.frameLabel.textContent = `${frame + 1} / ${total} · ${(frame / motion.fps).toFixed(2)} s`;
     document.body.dataset.frame = String(frame);
+    ui.playhead.style.left = `${(100 * frame) / total}%`;
     showSegmentAt(frame);
   }
 
@@ -344,6 +361,7 @@
     ui.slider.disabled = false;
     ui.play.disabled = false;
     ui.strip.replaceChildren();
+    ui.playhead.hidden = false;
     setFrame(0);
     setPlaying(true);
     ui.downloadBvh.disabled = true;
@@ -353,6 +371,10 @@
     document.body.dataset.frames = String(frames.length);
     document.body.dataset.framesAtStart = String(frames.length);
     document.body.dataset.state = 'streaming';
+    state.handle = null; // no edits until the motion has arrived whole (finishMotion: its handle)
+    document.body.dataset.handle = '';
+    if (request) selectSegment(-1); // a new generation; an edit keeps the selected segment
+    else refreshEditPanel();
   }
 
   function appendFrames(frames) {
@@ -368,29 +390,152 @@
     motion.warnings = end.warnings || [];
     state.streaming = false;
     state.currentSegment = -2;
+    state.handle = end.handle || null;
+    document.body.dataset.handle = state.handle || '';
+    if (state.selected >= motion.segments.length) state.selected = -1;
     buildSegmentStrip(motion.segments, motion.frames.length);
     showSegmentAt(Math.max(state.frame, 0));
+    selectSegment(state.selected);
     ui.downloadBvh.disabled = false;
     ui.downloadGlb.disabled = false;
     document.body.dataset.state = 'ready';
   }
 
+  /** The timeline: one block per segment, its width its share of the frames (the playhead moves over them). */
   function buildSegmentStrip(segments, total) {
     ui.strip.replaceChildren();
+    const width = (frames) => `${(100 * Math.max(0, frames)) / Math.max(1, total)}%`;
     segments.forEach((s, i) => {
       const span = document.createElement('span');
-      span.style.flex = `${Math.max(1, s.end_frame - s.start_frame)} 1 0`;
+      span.style.width = width(s.end_frame - s.start_frame);
       span.style.background = SEGMENT_COLORS[i % SEGMENT_COLORS.length];
       span.textContent = s.text;
-      span.title = `${s.text} (frames ${s.start_frame}–${s.end_frame - 1})`;
-      span.addEventListener('click', () => setFrame(s.start_frame));
+      span.title = `${s.text} (frames ${s.start_frame}–${s.end_frame - 1}): click to edit`;
+      span.addEventListener('click', () => {
+        selectSegment(i);
+        setFrame(s.start_frame);
+        state.clock = state.frame / state.motion.fps;
+      });
       ui.strip.appendChild(span);
     });
     const covered = segments.length ? segments[segments.length - 1].end_frame : 0;
     if (covered < total) {
       const rest = document.createElement('span');
-      rest.style.flex = `${total - covered} 1 0`;
+      rest.className = 'rest';
+      rest.style.width = width(total - covered);
       ui.strip.appendChild(rest);
+    }
+  }
+
+  // ---------------------------------------------------------------- editing a segment (POST /edit)
+
+  /** The edit kinds (GET /health `extra.edits`) of the model that made the motion shown. */
+  function editKinds() {
+    const name = state.motion && state.motion.model && state.motion.model.name;
+    const model = state.models.find((m) => m.name === name);
+    const kinds = model && model.extra && model.extra.edits;
+    return Array.isArray(kinds) ? kinds : [];
+  }
+
+  /** Selects segment `index` of the motion shown (-1: none) and puts its text in the edit bar. */
+  function selectSegment(index) {
+    const segments = (state.motion && state.motion.segments) || [];
+    state.selected = index >= 0 && index < segments.length ? index : -1;
+    Array.from(ui.strip.children).forEach((el, i) => el.classList.toggle('selected', i === state.selected));
+    ui.editText.value = state.selected >= 0 ? segments[state.selected].text : '';
+    ui.editText.classList.remove('invalid');
+    document.body.dataset.selected = String(state.selected);
+    refreshEditPanel();
+  }
+
+  /** Enables what can be sent now: a selected segment of a whole motion with a handle, kinds the model supports. */
+  function refreshEditPanel() {
+    const motion = state.motion;
+    const segments = (motion && motion.segments) || [];
+    const index = state.selected;
+    const selected = index >= 0 && index < segments.length;
+    const kinds = editKinds();
+    const regenerates = kinds.includes('regenerate');
+    const bodyParts = kinds.includes('body_part');
+    const ready = Boolean(state.handle) && !state.streaming && !state.busy;
+    if (state.handle) ui.editPanel.hidden = false;
+    const name = (motion && motion.model && motion.model.name) || 'this model';
+    if (!regenerates && !bodyParts) {
+      ui.editTitle.textContent = `${name} cannot edit a motion`;
+    } else if (selected) {
+      const s = segments[index];
+      ui.editTitle.textContent = `segment ${index + 1} of ${segments.length} · frames ${s.start_frame}–${s.end_frame - 1}`;
+    } else {
+      ui.editTitle.textContent = 'click a segment on the timeline to edit it';
+    }
+    if (!bodyParts) ui.editUpper.checked = false;
+    ui.editUpper.disabled = !(ready && selected && bodyParts);
+    const upperLabel = ui.editUpper.closest('label');
+    upperLabel.classList.toggle('unsupported', !bodyParts);
+    upperLabel.title = bodyParts ? 'regenerate only the upper body\'s joints over this segment'
+      : `${name} cannot regenerate a body part (GET /health: its extra.edits)`;
+    const sendable = ready && selected && (ui.editUpper.checked ? bodyParts : regenerates);
+    ui.editText.disabled = !(ready && selected && (regenerates || bodyParts));
+    ui.editRegenerate.disabled = !sendable;
+    ui.editReroll.disabled = !sendable;
+    document.body.dataset.editKinds = kinds.join(',');
+  }
+
+  /** POST /edit: the selected segment again (its new text; a new random seed on a re-roll; only the upper body). */
+  async function onEdit(reroll) {
+    const motion = state.motion;
+    const index = state.selected;
+    if (!motion || !state.handle || state.busy || index < 0 || index >= motion.segments.length) return;
+    clearInvalid();
+    const text = ui.editText.value.trim();
+    if (!text) {
+      showMessage(fieldError(ui.editText, `segment ${index + 1}: the text is empty`).message, 'error');
+      return;
+    }
+    const edit = ui.editUpper.checked ? { op: 'body_part', segment: index, part: 'upper_body' } : { segment: index };
+    if (text !== motion.segments[index].text) edit.text = text;
+    if (reroll) edit.seed = Math.floor(Math.random() * 2 ** 31);
+    state.busy = true;
+    ui.generate.disabled = true;
+    refreshEditPanel();
+    document.body.dataset.state = 'loading';
+    showMessage(`Regenerating segment ${index + 1}…`);
+    const started = performance.now();
+    try {
+      const response = await postJson('edit', { handle: state.handle, edits: [edit], format: 'json' });
+      if (!response.ok) {
+        showMessage(await describeFailure(response), 'error');
+        document.body.dataset.state = 'error';
+        return;
+      }
+      const answer = await response.json();
+      showEdited(answer, index);
+      showWarnings(answer.warnings);
+      const seconds = ((performance.now() - started) / 1000).toFixed(2);
+      const seeds = (answer.edited || []).map((e) => `segment ${e.segment + 1} seed ${e.seed}`).join(', ');
+      showMessage(`Edited: ${seeds || `segment ${index + 1}`}${edit.op ? ' (upper body)' : ''} · ` +
+        `${answer.frames.length} frames in ${seconds} s`, 'ok');
+      document.body.dataset.edits = String(Number(document.body.dataset.edits || 0) + 1);
+    } catch (err) {
+      showMessage(`Could not edit: ${err.message}`, 'error');
+      document.body.dataset.state = 'error';
+    } finally {
+      state.busy = false;
+      ui.generate.disabled = false;
+      refreshEditPanel();
+    }
+  }
+
+  /** The edited motion (a json answer) replaces the shown one and plays from a second before the edited segment. */
+  function showEdited(answer, index) {
+    const motion = { fps: answer.fps, joints: answer.joints, parents: answer.parents, model: answer.model,
+      seed: answer.seed, frames: answer.frames, segments: [], warnings: [] };
+    beginMotion(motion, null);
+    finishMotion(answer);
+    const segment = motion.segments[index];
+    if (segment) {
+      setFrame(Math.max(0, segment.start_frame - motion.fps));
+      state.clock = state.frame / motion.fps;
     }
   }
 
@@ -452,6 +597,10 @@
   /** Marks the input a 422 error points at (loc like ["body", "segments", 1, "duration"]). */
   function markFromLocation(loc) {
     const path = loc[0] === 'body' ? loc.slice(1) : loc;
+    if (path[0] === 'edits') { // an edit sent from the edit bar: its text is the field the person can change
+      if (path.includes('text')) ui.editText.classList.add('invalid');
+      return;
+    }
     if (path[0] === 'segments' && Number.isInteger(path[1])) {
       const row = ui.rows.children[path[1]];
       const input = row && row.querySelector(path[2] === 'duration' ? '.seg-duration' : '.seg-text');
@@ -551,12 +700,14 @@
     return end;
   }
 
-  async function postGenerate(body) {
+  async function postJson(path, body) {
     const headers = { 'Content-Type': 'application/json' };
     const key = ui.apiKey.value.trim();
     if (key) headers.Authorization = `Bearer ${key}`;
-    return fetch('generate', { method: 'POST', headers, body: JSON.stringify(body) });
+    return fetch(path, { method: 'POST', headers, body: JSON.stringify(body) });
   }
+
+  const postGenerate = (body) => postJson('generate', body);
 
   async function onGenerate(event) {
     event.preventDefault();
@@ -568,6 +719,8 @@
       return;
     }
     ui.generate.disabled = true;
+    state.busy = true; // no edit meanwhile: its answer would race this one
+    refreshEditPanel();
     document.body.dataset.state = 'loading';
     showMessage('Generating…');
     showWarnings([]);
@@ -591,6 +744,8 @@
       document.body.dataset.state = 'error';
     } finally {
       ui.generate.disabled = false;
+      state.busy = false;
+      refreshEditPanel();
     }
   }
 
@@ -600,12 +755,14 @@
     return match ? decodeURIComponent(match[1]) : fallback;
   }
 
-  /** Asks for the shown motion again in another format (same request, same seed) and saves the file. */
+  /** Asks for the shown motion again in another format (same request, same seed; an edited motion: its handle
+   * with no edits, the same motion bit for bit) and saves the file. */
   async function download(format, button) {
-    if (!state.request) return;
+    if (!state.request && !state.handle) return;
     button.disabled = true;
     try {
-      const response = await postGenerate({ ...state.request, format });
+      const response = state.request ? await postGenerate({ ...state.request, format })
+        : await postJson('edit', { handle: state.handle, edits: [], format });
       if (!response.ok) {
         showMessage(await describeFailure(response), 'error');
         return;
@@ -647,6 +804,7 @@
     }
     state.models = models;
     ui.modelField.hidden = models.length < 2;
+    refreshEditPanel();
   }
 
   /** A newly chosen model brings its own guidance default (1 for a model without an unconditional branch). */
@@ -731,6 +889,16 @@
   ui.downloadGlb.addEventListener('click', () => download('glb', ui.downloadGlb));
   ui.form.addEventListener('input', (e) => e.target.classList.remove('invalid'));
   ui.model.addEventListener('change', onModelChange);
+  ui.editRegenerate.addEventListener('click', () => onEdit(false));
+  ui.editReroll.addEventListener('click', () => onEdit(true));
+  ui.editUpper.addEventListener('change', refreshEditPanel);
+  ui.editText.addEventListener('input', () => ui.editText.classList.remove('invalid'));
+  ui.editText.addEventListener('keydown', (e) => {
+    if (e.key === 'Enter') {
+      e.preventDefault();
+      onEdit(false);
+    }
+  });
 
   DEFAULT_ROWS.forEach(([text, duration]) => addRow(text, duration));
   pollHealth();
