@@ -18,7 +18,7 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the repo's packages importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from scripts.render_motions import SheetRow, contact_sheet
+from scripts.render_motions import SheetRow, contact_sheet, load_engine
 from t2m.model.evaluation.probes import probe_by_name
 
 REPO = Path(__file__).resolve().parent.parent
@@ -41,15 +41,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args(argv)
     from t2m.service.editing import edit_in_process
-    from t2m.service.engine.engine import OnnxEngine
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
     from t2m.service.handles import make_handle
     from t2m.service.schemas import RegenerateEdit
 
-    try:
-        engine = OnnxEngine.load(args.bundle)
-    except (ValueError, FileNotFoundError) as error:
-        print(f"error: {error}", file=sys.stderr)
+    engine = load_engine(args.bundle)
+    if engine is None:
         return 2
     limits = engine.limits
     request = GenerationRequest([SegmentRequest(t, d) for t, d in SENTENCES], seed=args.seed,

@@ -17,7 +17,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from t2m.motion.skeleton import SMPL22
 if TYPE_CHECKING:
     from t2m.service.engine.types import Motion
 
-__all__ = ["SINGLE_MOTIONS", "Camera", "SheetRow", "contact_sheet", "main", "stream_gif"]
+__all__ = ["SINGLE_MOTIONS", "Camera", "SheetRow", "contact_sheet", "load_engine", "main", "stream_gif"]
 
 log = logging.getLogger("scripts.render_motions")
 
@@ -269,6 +269,17 @@ def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) ->
     return rows, stream
 
 
+def load_engine(bundle: str) -> Any:
+    """The bundle's OnnxEngine, or None after one line on stderr saying why it did not load."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    try:
+        return OnnxEngine.load(bundle)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--bundle", default=str(REPO / "t2m" / "bundles" / "default"), help="bundle directory")
@@ -278,12 +289,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="classifier-free guidance (default: the manifest's, or 1 without an unconditional branch)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    try:
-        from t2m.service.engine.engine import OnnxEngine
-
-        engine = OnnxEngine.load(args.bundle)
-    except (ValueError, FileNotFoundError) as error:
-        print(f"error: {error}", file=sys.stderr)
+    engine = load_engine(args.bundle)
+    if engine is None:
         return 2
     limits = engine.limits
     guidance = limits.guidance(args.guidance)

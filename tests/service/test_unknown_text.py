@@ -15,6 +15,15 @@ from t2m.service.engine.types import GenerationRequest, RequestLimitError, Segme
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "model"))
 
 
+def _tiny_phrasings(folder: Path) -> Path:
+    """A calibration/evaluation file of two known and two unknown sentences (for `t2m index-captions`)."""
+    path = folder / "phrasings.json"
+    path.write_text(json.dumps({name: {"known": ["a person walks forward", "someone waves"],
+                                       "unknown": ["a cat purrs", "rain falls"]}
+                                for name in ("calibration", "evaluation")}))
+    return path
+
+
 def _request(*texts: str, seed: int = 0) -> GenerationRequest:
     return GenerationRequest([SegmentRequest(text, 2.0) for text in texts], seed=seed, guidance=1.0)
 
@@ -134,10 +143,7 @@ def test_index_captions_command_writes_a_verified_indexed_bundle(random_bundle, 
     bundle = tmp_path / "bundle"
     shutil.copytree(random_bundle, bundle)
     data = make_dataset(tmp_path / "data")
-    phrasings = tmp_path / "phrasings.json"
-    phrasings.write_text(json.dumps({name: {"known": ["a person walks forward", "someone waves"],
-                                            "unknown": ["a cat purrs", "rain falls"]}
-                                     for name in ("calibration", "evaluation")}))
+    phrasings = _tiny_phrasings(tmp_path)
     assert main(["index-captions", str(bundle), "--data", str(data), "--phrasings", str(phrasings)]) == 0
     assert "threshold" in capsys.readouterr().out
     manifest = verify_bundle(bundle)
@@ -173,10 +179,7 @@ def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp
     bundle = tmp_path / "dip"
     build_random_diffusion_bundle(bundle, arch="dip", seed=1)
     data = make_dataset(tmp_path / "data")
-    phrasings = tmp_path / "phrasings.json"
-    phrasings.write_text(json.dumps({name: {"known": ["a person walks forward", "someone waves"],
-                                            "unknown": ["a cat purrs", "rain falls"]}
-                                     for name in ("calibration", "evaluation")}))
+    phrasings = _tiny_phrasings(tmp_path)
     assert main(["index-captions", str(bundle), "--data", str(data), "--phrasings", str(phrasings)]) == 0
     capsys.readouterr()
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
