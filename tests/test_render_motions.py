@@ -53,3 +53,19 @@ def test_contact_sheet_and_gif(walk_and_wave, tmp_path):
         assert image.n_frames == 10 and image.info["duration"] == 500
     with pytest.raises(ValueError, match="sentences"):
         stream_gif(stream, ["one"], [0, 60], tmp_path / "bad.gif")
+
+
+def test_the_edit_picture_is_drawn_and_a_bad_bundle_is_one_line(tmp_path, capsys):
+    """scripts/render_edit.py: the README's edit picture (two rows, a PNG), and a missing bundle refused in one line."""
+    from PIL import Image
+
+    from scripts.render_edit import main as render_edit
+
+    out = tmp_path / "edit.png"
+    assert render_edit(["--out", str(out)]) == 0
+    assert "bit-identical" in capsys.readouterr().out
+    with Image.open(out) as image:
+        assert image.format == "PNG" and image.height > 200 and image.width > 600
+    assert render_edit(["--bundle", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and len(err.strip().splitlines()) == 1
