@@ -106,7 +106,12 @@ def _width(limits: ModelLimits) -> int:
 
 def make_handle(limits: ModelLimits, request: GenerationRequest, codes: Sequence[np.ndarray] | None) -> str | None:
     """The handle of an answer of the model of `limits` to `request` with these segment codes; None when the model's
-    codes are not tokens (no `limits.codes`) or the motion carries none."""
+    codes are not tokens (no `limits.codes`) or the motion carries none. A model whose answers are made again from
+    their request (`limits.recipe`: the diffusion family) gets the recipe of `request` (service/recipes.py)."""
+    if limits.recipe:
+        from t2m.service.recipes import make_recipe
+
+        return make_recipe(limits, request)
     layout = limits.codes
     if layout is None or codes is None or len(codes) != len(request.segments):
         return None
@@ -132,13 +137,14 @@ def _max_body(limits: ModelLimits) -> int:
     return 4 + MAX_META_BYTES + MAX_SEGMENTS * limits.max_tokens * limits.codes.values * _width(limits)
 
 
-def _packed(handle: str) -> tuple[bytes, bytes]:
-    """(checksum, compressed body) of a handle string."""
-    if not isinstance(handle, str) or not handle.startswith(HANDLE_PREFIX):
-        raise HandleError("handle", f"not a t2m handle (it starts with {HANDLE_PREFIX!r}, the format version)")
-    if len(handle) > MAX_HANDLE_CHARS:
-        raise HandleError("handle", f"{len(handle)} characters, more than {MAX_HANDLE_CHARS}")
-    text = handle[len(HANDLE_PREFIX):]
+def _packed(handle: str, prefix: str = HANDLE_PREFIX, max_chars: int = MAX_HANDLE_CHARS) -> tuple[bytes, bytes]:
+    """(checksum, compressed body) of a handle string of the format `prefix` names."""
+    if not isinstance(handle, str) or not handle.startswith(prefix):
+        raise HandleError("handle", f"not a t2m handle of this model (its handles start with {prefix!r}, the format "
+                                    "version)")
+    if len(handle) > max_chars:
+        raise HandleError("handle", f"{len(handle)} characters, more than {max_chars}")
+    text = handle[len(prefix):]
     try:
         packed = base64.b64decode(text + "=" * (-len(text) % 4), altchars=b"-_", validate=True)
     except (binascii.Error, ValueError):
@@ -169,7 +175,11 @@ def _unpack(handle: str, limits: ModelLimits) -> bytes:
 
 def handle_model(handle: str) -> tuple[str, str]:
     """The (name, version) of the model a handle names, read from its description alone (nothing else checked
-    yet: `read_handle` does that with the model's limits)."""
+    yet: `read_handle` does that with the model's limits). A diffusion model's recipe (service/recipes.py) too."""
+    from t2m.service.recipes import RECIPE_PREFIX, recipe_model
+
+    if isinstance(handle, str) and handle.startswith(RECIPE_PREFIX):
+        return recipe_model(handle)
     _, compressed = _packed(handle)
     try:
         start = zlib.decompressobj().decompress(compressed, 4 + MAX_META_BYTES)
