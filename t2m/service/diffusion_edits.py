@@ -130,7 +130,10 @@ def apply_edits(engine: Any, segments: list[FrameSegment], edits: Sequence[AnyEd
     seen: set[int] = set()
     gaps: set[int] = set()
     for index, edit in enumerate(edits):
-        _check_kind(edit.op, index, limits)
+        try:
+            _check_kind(edit.op, index, limits)
+        except EditError as error:
+            raise EditError((*loc, index, "op"), str(error), edit.op) from None
         if isinstance(edit, BodyPartEdit):
             if edit.segment >= len(segments) or edit.segment in seen:
                 why = (f"segment {edit.segment} is edited twice" if edit.segment in seen else

@@ -341,8 +341,9 @@ class MotionResponse(BaseModel):
     warnings: list[str] = Field(default_factory=list)
     handle: str | None = Field(
         None, description="The motion's codes, segments and options in one compact string (`t2m1.` + base64url; "
-                          "docs/api.md): send it to POST /edit to change some segments and keep the others. null "
-                          "for a model whose codes are not tokens (the diffusion family).")
+                          "docs/api.md): send it to POST /edit to change some segments and keep the others. A "
+                          "diffusion model's is its recipe instead (`t2m2.`: seed, guidance, segments and the edits "
+                          "made since, which make its frames again exactly).")
 
 
 class EditResponse(MotionResponse):
