@@ -24,7 +24,7 @@ import numpy as np
 
 from t2m.service.edit_context import inpaint_map
 from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion, SegmentRequest, tokens_for_duration
-from t2m.service.handles import HandleError, MotionHandle, make_handle, read_handle, segment_seed
+from t2m.service.handles import MotionHandle, make_handle, read_handle, segment_seed
 from t2m.service.schemas import MAX_SEGMENTS, MAX_TOTAL_S, BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
 
 __all__ = ["AnyEdit", "EditError", "EditPlan", "EditResult", "PlannedSegment", "SampledPart", "edit_in_process",
@@ -271,12 +271,6 @@ def edit_in_process(engine: Any, handle: str | MotionHandle, edits: Sequence[Any
     one already read (an uploaded motion's: service/uploads.py). HandleError / EditError / RequestLimitError as the
     route's 422s."""
     limits = engine.limits
-    if limits.recipe:   # a diffusion model: its handles are recipes, its edits made on frames
-        from t2m.service.diffusion_edits import edit_recipe
-
-        if isinstance(handle, MotionHandle):
-            raise HandleError("handle", f"model {limits.name!r} is a diffusion model: it edits its own handles")
-        return edit_recipe(engine, handle, edits)
     kept = handle if isinstance(handle, MotionHandle) else read_handle(handle, limits)
     plan = plan_edit(kept, edits, limits)
     sampled = [engine.generate(part.request) for part in plan.parts]

@@ -32,11 +32,9 @@ from typing import Any
 from pydantic import TypeAdapter, ValidationError
 
 from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, frames_for_duration
-from t2m.service.handles import CHECKSUM_BYTES, HandleError, _no_constant, _number, _packed
+from t2m.service.handle_format import CHECKSUM_BYTES, HandleError, _no_constant, _packed, model_seed_guidance
 from t2m.service.schemas import (
     MAX_DURATION_S,
-    MAX_GUIDANCE,
-    MAX_SEED,
     MAX_SEGMENTS,
     MAX_TEXT_CHARS,
     MAX_TOTAL_S,
@@ -162,12 +160,7 @@ def read_recipe(handle: str, limits: ModelLimits) -> Recipe:
     if not limits.recipe:
         raise HandleError("handle", f"model {limits.name!r} makes token codes: its handles start with 't2m1.'")
     body = _body(handle)
-    if body["model"] != limits.name or body["version"] != limits.version:
-        raise HandleError("handle.model", f"made by model {body['model']!r} version {body['version']!r}, not by "
-                                          f"{limits.name!r} version {limits.version!r}: a handle is edited by the "
-                                          "model that made it")
-    seed = _number(body, "seed", 0, MAX_SEED, integer=True)
-    guidance = float(_number(body, "guidance", 0.0, MAX_GUIDANCE))
+    seed, guidance = model_seed_guidance(body, limits)
     rows = body["segments"]
     if not isinstance(rows, list) or not 1 <= len(rows) <= MAX_SEGMENTS:
         raise HandleError("handle.segments", f"must be a list of 1-{MAX_SEGMENTS} segments")

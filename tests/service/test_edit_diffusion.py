@@ -22,8 +22,8 @@ import torch
 from test_edit import assert_rigidly_moved
 
 from t2m.export.families.diffusion_random import build_random_diffusion_bundle
-from t2m.service.diffusion_edits import replay
-from t2m.service.editing import EditError, edit_in_process
+from t2m.service.diffusion_edits import edit_recipe, replay
+from t2m.service.editing import EditError
 from t2m.service.engine.engine import OnnxEngine
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
 from t2m.service.handles import HandleError, handle_model, make_handle, segment_seed
@@ -67,7 +67,7 @@ def edits_of(*edits: dict) -> list:
 
 
 def run(engine, handle, *edits: dict):
-    return edit_in_process(engine, handle, edits_of(*edits))
+    return edit_recipe(engine, handle, edits_of(*edits))
 
 
 def frames_of(engine, handle) -> list[np.ndarray]:
@@ -100,7 +100,7 @@ def test_both_declare_their_edits_and_body_parts_are_mdms_channels(engines, arch
 @pytest.mark.parametrize("arch", ARCHS)
 def test_the_handle_is_a_recipe_that_makes_the_frames_again_bit_for_bit(engines, originals, arch):
     engine = engines[arch]
-    request, motion, handle = originals[arch]
+    _, motion, handle = originals[arch]
     assert handle.startswith(RECIPE_PREFIX) and len(handle) < 400
     assert handle_model(handle) == (engine.limits.name, engine.limits.version)
     recipe = read_recipe(handle, engine.limits)
@@ -208,11 +208,11 @@ def test_a_flipped_byte_a_token_handle_and_a_long_chain_are_refused(engines, ori
     packed = bytearray(base64.urlsafe_b64decode(handle[5:] + "=" * (-len(handle[5:]) % 4)))
     packed[3] ^= 1
     flipped = RECIPE_PREFIX + base64.urlsafe_b64encode(bytes(packed)).rstrip(b"=").decode()
-    with pytest.raises(HandleError, match="handle.checksum"):
+    with pytest.raises(HandleError, match=r"handle\.checksum"):
         run(engine, flipped)
     with pytest.raises(HandleError, match="t2m2"):
         run(engine, "t2m1." + handle[5:])
-    with pytest.raises(HandleError, match="handle.model"):
+    with pytest.raises(HandleError, match=r"handle\.model"):
         read_recipe(handle, replace(engine.limits, name="another"))
     body = recipe_json(handle)
     body["edits"] = [[{"op": "body_part", "segment": 0, "part": "upper_body", "seed": s}]
@@ -220,7 +220,7 @@ def test_a_flipped_byte_a_token_handle_and_a_long_chain_are_refused(engines, ori
     with pytest.raises(EditError, match="already records"):
         run(engine, recipe_of(body), {"op": "body_part", "segment": 1, "part": "upper_body"})
     body["edits"].append(body["edits"][0])
-    with pytest.raises(HandleError, match="handle.edits"):
+    with pytest.raises(HandleError, match=r"handle\.edits"):
         run(engine, recipe_of(body))
 
 
@@ -266,3 +266,20 @@ def test_another_models_handle_is_refused_at_handle_model(bundles, make_client, 
     client = make_client(Settings(bundle_path=bundles / "dip", intra_op_threads=1))
     refused = client.post("/edit", json={"handle": originals["mdm"][2], "edits": []})
     assert refused.status_code == 422 and "handle.model" in refused.json()["detail"][0]["msg"]
+
+
+def test_t2m_edit_edits_a_saved_diffusion_motion(bundles, tmp_path):
+    from t2m.cli.main import main
+
+    model = str(bundles / "dip")
+    saved = tmp_path / "walk.json"
+    assert main(["generate", "a person walks forward", "--duration", "1", "--then", "a person waves", "--duration",
+                 "1.5", "--seed", "5", "--model", model, "-o", str(saved)]) == 0
+    original = json.loads(saved.read_text())
+    assert original["handle"].startswith(RECIPE_PREFIX)
+    edited_path = tmp_path / "edited.json"
+    assert main(["edit", str(saved), "--edits", '[{"op": "in_between", "after": 0, "text": "a person turns", '
+                 '"duration": 0.5, "seed": 1}]', "--model", model, "-o", str(edited_path)]) == 0
+    edited = json.loads(edited_path.read_text())
+    assert edited["edited"] == [{"segment": 1, "seed": 1}] and edited["frames"][:20] == original["frames"][:20]
+    assert len(edited["frames"]) == len(original["frames"]) + 10
