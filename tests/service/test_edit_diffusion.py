@@ -21,6 +21,7 @@ import pytest
 import torch
 from test_edit import assert_rigidly_moved
 
+from t2m.decoding.diffusion import numbered_join_windows
 from t2m.export.families.diffusion_random import build_random_diffusion_bundle
 from t2m.service.diffusion_edits import edit_recipe, replay
 from t2m.service.editing import EditError
@@ -91,7 +92,8 @@ def recipe_of(body: dict) -> str:
 @pytest.mark.parametrize("arch", ARCHS)
 def test_both_declare_their_edits_and_body_parts_are_mdms_channels(engines, arch):
     limits = engines[arch].limits
-    assert limits.edits == frozenset({"in_between", "body_part"}) and limits.recipe and limits.codes is None
+    assert limits.edits == frozenset({"regenerate", "append", "prepend", "in_between", "body_part"})
+    assert limits.recipe and limits.codes is None
     lower = limits.body_parts["lower_body"]
     assert len(lower) == 107 and len(limits.body_parts["upper_body"]) == 263 - 107   # MDM's HML_LOWER_BODY_MASK
     assert set(lower) >= {0, 1, 2, 3, 259, 260, 261, 262} and not set(lower) & set(limits.body_parts["upper_body"])
@@ -189,7 +191,9 @@ def test_an_edited_motion_is_edited_again_and_its_recipe_replays_the_chain(engin
      "handle.edits.0.0.after"),
     (lambda b: b.update(edits=[[{"op": "body_part", "segment": 0, "part": "arms", "seed": 1}]]),
      "handle.edits.0.0.part"),
-    (lambda b: b.update(edits=[[{"op": "regenerate", "segment": 0, "seed": 1}]]), "handle.edits.0.0.op"),
+    (lambda b: b.update(edits=[[{"op": "regenerate", "segment": 9, "seed": 1}]]), "handle.edits.0.0.segment"),
+    (lambda b: b.update(edits=[[{"op": "append", "segments": [{"text": "t", "duration": None}], "seed": 1}]]),
+     "handle.edits.0.0.segments.0.duration"),
     (lambda b: b.update(edits=[[]]), "handle.edits.0"),
     (lambda b: b.update(version="9.9.9"), "handle.model"),
 ])
@@ -227,7 +231,8 @@ def test_a_flipped_byte_a_token_handle_and_a_long_chain_are_refused(engines, ori
 @pytest.mark.parametrize("arch", ARCHS)
 def test_edits_over_http(bundles, make_client, arch):
     client = make_client(Settings(bundle_path=bundles / arch, intra_op_threads=1))
-    assert client.get("/health").json()["model"]["extra"]["edits"] == ["body_part", "in_between"]
+    assert client.get("/health").json()["model"]["extra"]["edits"] == ["append", "body_part", "in_between",
+                                                                       "prepend", "regenerate"]
     generated = client.post("/generate", json={"segments": [{"text": t, "duration": d} for t, d in THREE],
                                                "seed": 11}).json()
     handle = generated["handle"]
@@ -247,7 +252,9 @@ def test_edits_over_http(bundles, make_client, arch):
     assert again["frames"] == edited["frames"] and again["handle"] == edited["handle"]
     assert client.post("/edit", json={"handle": handle, "edits": edits, "format": "bvh"}).status_code == 200
     refusals = [
-        ({"handle": handle, "edits": [{"segment": 0, "seed": 3}]}, ["body", "edits", 0, "op"]),
+        ({"handle": handle, "edits": [{"segment": 3, "seed": 3}]}, ["body", "edits", 0, "segment"]),
+        ({"handle": handle, "edits": [{"op": "append", "segments": [{"text": "t", "duration": None}]}]},
+         ["body", "edits", 0, "segments", 0, "duration"]),
         ({"handle": handle, "edits": [{"op": "in_between", "after": 2, "text": "t", "duration": 1.0}]},
          ["body", "edits", 0, "after"]),
         ({"handle": handle, "edits": [{"op": "body_part", "segment": 0, "part": "upper_body", "start": 2.0}]},
@@ -283,3 +290,61 @@ def test_t2m_edit_edits_a_saved_diffusion_motion(bundles, tmp_path):
     edited = json.loads(edited_path.read_text())
     assert edited["edited"] == [{"segment": 1, "seed": 1}] and edited["frames"][:20] == original["frames"][:20]
     assert len(edited["frames"]) == len(original["frames"]) + 10
+
+
+def remade_by_joins(engine, frames: list[int], joins: set[int]) -> np.ndarray:
+    """bool per frame of a motion of segments of `frames`: made anew by MDM's in-betweening of these joins."""
+    settings = engine.codes.settings
+    remade = np.zeros(sum(frames), bool)
+    for k, window in numbered_join_windows(frames, settings.join_frames, settings.join_context):
+        if k in joins:
+            remade[window.start + window.before:window.end - window.after] = True
+    return remade
+
+
+@pytest.mark.parametrize("arch", ARCHS)
+def test_regenerate_remakes_the_segment_and_keeps_the_rest(engines, originals, arch):
+    engine = engines[arch]
+    _, motion, handle = originals[arch]
+    answer = run(engine, handle, {"segment": 1, "text": "a person jumps", "seed": 3})
+    assert answer.edited == [(1, 3)]
+    old, new = np.concatenate(motion.codes), np.concatenate(frames_of(engine, answer.handle))
+    allowed = np.zeros(len(old), bool)
+    allowed[20:50] = True                                   # the segment; MDM: and its joins' windows
+    if arch == "mdm":
+        allowed |= remade_by_joins(engine, [20, 30, 13], {0, 1})
+    changed = (new != old).any(axis=1)
+    assert not changed[~allowed].any() and changed[20:50].mean() > 0.9
+    first = int(np.flatnonzero(allowed)[0])
+    last = int(np.flatnonzero(allowed)[-1]) + 1
+    assert np.array_equal(answer.motion.joints[:first], motion.joints[:first])
+    assert_rigidly_moved(answer.motion.joints[last:], motion.joints[last:])
+    longer = run(engine, handle, {"segment": 0, "duration": 2.0})
+    assert [(s.start_frame, s.end_frame) for s in longer.motion.segments] == [(0, 40), (40, 70), (70, 83)]
+
+
+@pytest.mark.parametrize("arch", ARCHS)
+@pytest.mark.parametrize("op", ["append", "prepend"])
+def test_append_and_prepend_keep_the_motion(engines, originals, arch, op):
+    engine = engines[arch]
+    _, motion, handle = originals[arch]
+    added = [{"text": "a person sits down", "duration": 1.0}, {"text": "a person stands up", "duration": 0.8}]
+    answer = run(engine, handle, {"op": op, "segments": added, "seed": 6})
+    frames = frames_of(engine, answer.handle)
+    assert [len(f) for f in frames] == ([20, 30, 13, 20, 16] if op == "append" else [20, 16, 20, 30, 13])
+    old = np.concatenate(motion.codes)
+    new = np.concatenate(frames[:3] if op == "append" else frames[2:])
+    kept = np.ones(len(old), bool)
+    if arch == "mdm":   # the join with the new segments is in-betweened
+        lengths = [20, 30, 13, 20, 16] if op == "append" else [20, 16, 20, 30, 13]
+        remade = remade_by_joins(engine, lengths, {2} if op == "append" else {1})
+        kept &= ~(remade[:63] if op == "append" else remade[36:])
+    assert np.array_equal(new[kept], old[kept]) and kept.sum() > 50
+    assert answer.edited == ([(3, 6), (4, 6)] if op == "append" else [(0, 6), (1, 6)])
+    joints = answer.motion.joints
+    if op == "append":
+        first = int(np.flatnonzero(~kept)[0]) if not kept.all() else 63
+        assert np.array_equal(joints[:first], motion.joints[:first])
+    else:
+        after = int(np.flatnonzero(~kept)[-1]) + 1 if not kept.all() else 0
+        assert_rigidly_moved(joints[36 + after:], motion.joints[after:])

@@ -29,11 +29,13 @@ import onnxruntime as ort
 from t2m.bundle import BundleError
 from t2m.decoding.diffusion import (
     DiffusionJob,
+    JoinWindow,
     NoiseSource,
     SegmentChain,
     _next_prefix,
     cosine_schedule,
     join_windows,
+    numbered_join_windows,
     run_jobs,
     sample_segment_chains,
 )
@@ -199,12 +201,12 @@ class DiffusionCodes:
         return _next_prefix(self.prefix, np.asarray(frames, np.float32))
 
     def inpaint(self, job: DiffusionRequest, known: np.ndarray, known_mask: np.ndarray,
-                prefix: np.ndarray | None = None) -> np.ndarray:
-        """Frames [W, F] made with the job's first text, guidance and generator where `known_mask` ([W, F] or
-        [W, 1]) is False, the `known` values elsewhere (imposed on x0 at every step, and exactly in the answer).
-        MDM: one window of W frames (W <= max_tokens). DiP: ceil(W / pred_len) calls after `prefix` (a call's
-        frames past W are free and dropped), each call continuing from the frames kept before it."""
-        text, mask = job.texts[0], None if job.text_masks is None else job.text_masks[0]
+                prefix: np.ndarray | None = None, segment: int = 0) -> np.ndarray:
+        """Frames [W, F] made with the job's `segment`-th text, its guidance and generator where `known_mask`
+        ([W, F] or [W, 1]) is False, the `known` values elsewhere (imposed on x0 at every step, and exactly in the
+        answer). MDM: one window of W frames (W <= max_tokens). DiP: ceil(W / pred_len) calls after `prefix` (a
+        call's frames past W are free and dropped), each call continuing from the frames kept before it."""
+        text, mask = job.texts[segment], None if job.text_masks is None else job.text_masks[segment]
         known = np.asarray(known, np.float32)
         known_mask = np.broadcast_to(np.asarray(known_mask, bool), known.shape)
         width = self.settings.pred_len if self.settings.chained else len(known)
@@ -222,6 +224,28 @@ class DiffusionCodes:
             if context is not None:
                 context = _next_prefix(context, call.x[:kept])
         return np.where(known_mask, known, np.concatenate(made)).astype(np.float32)
+
+    def whole(self, job: DiffusionRequest) -> list[np.ndarray]:
+        """MDM: each segment of the job a whole motion (one batch), as /generate makes them before its joins."""
+        made = [DiffusionJob(text=job.texts[k], frames=frames, rng=job.rng, guidance=job.guidance,
+                             text_mask=None if job.text_masks is None else job.text_masks[k], noise=job.noise)
+                for k, frames in enumerate(job.frames)]
+        run_jobs(self.denoiser, self.schedule, made, self.features)
+        return [one.x for one in made]
+
+    def rejoin(self, job: DiffusionRequest, parts: Sequence[np.ndarray], joins: set[int]) -> list[np.ndarray]:
+        """MDM: the segments `parts` with the joins k in `joins` (between parts k and k + 1) in-betweened as
+        /generate's joins are (the windows of all the parts' joins, only those made again), in one batch."""
+        frames = [len(part) for part in parts]
+        windows = [window for k, window in numbered_join_windows(frames, self.settings.join_frames,
+                                                                 self.settings.join_context) if k in joins]
+        motion = np.concatenate(parts)
+        edits = [self._join_job(job, motion, window) for window in windows]
+        if edits:
+            run_jobs(self.denoiser, self.schedule, edits, self.features)
+        for window, edit in zip(windows, edits):
+            motion[window.start:window.end] = edit.x
+        return np.split(motion, np.cumsum(frames)[:-1])
 
     # ------------------------------------------------------------------------------------------------ DiP
 
@@ -274,6 +298,12 @@ class DiffusionCodes:
             return np.zeros(dim, np.float32), None
         return np.zeros((1, dim), np.float32), np.ones(1, bool)
 
+    def _join_job(self, job: DiffusionRequest, motion: np.ndarray, window: JoinWindow) -> DiffusionJob:
+        """The in-between of one join window of a request's motion: the unconditional model, its sides known."""
+        text, mask = self._null_text(job)
+        return DiffusionJob(text=text, text_mask=mask, frames=window.frames, rng=job.rng, guidance=1.0,
+                            known=motion[window.start:window.end], known_mask=window.known_mask(), noise=job.noise)
+
     def _join(self, jobs: Sequence[DiffusionRequest], made: list[list[np.ndarray] | None],
               on_step: Callable[[int], None] | None) -> None:
         """In-between each join of a request's sentences (in place), every join of every request in one batch."""
@@ -283,11 +313,8 @@ class DiffusionCodes:
             if parts is None or len(parts) < 2 or s.join_frames == 0:
                 continue
             motion = np.concatenate(parts)
-            text, mask = self._null_text(job)
             for window in join_windows(job.frames, s.join_frames, s.join_context):
-                windows.append((window, DiffusionJob(
-                    text=text, text_mask=mask, frames=window.frames, rng=job.rng, guidance=1.0,
-                    known=motion[window.start:window.end], known_mask=window.known_mask(), noise=job.noise)))
+                windows.append((window, self._join_job(job, motion, window)))
                 owners.append(index)
         if not windows:
             return
