@@ -189,7 +189,7 @@ class ContinueEdit(_Strict):
 
 class InBetweenEdit(_Strict):
     """Fill a gap at the join after segment `after` with a new segment of this text and duration, keeping both
-    sides (a family whose loop inpaints: the masked family)."""
+    sides (a family whose loop inpaints: the masked and diffusion families)."""
 
     op: Literal["in_between"]
     after: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(
@@ -202,7 +202,8 @@ class InBetweenEdit(_Strict):
 
 class BodyPartEdit(_Strict):
     """Regenerate some joints of one segment (over all of it, or from `start` to `end` seconds into it), keeping the
-    other joints' tokens (a joint-token masked model: /health `extra.edits` lists body_part)."""
+    other joints' tokens (a joint-token masked model) or feature channels (a diffusion model: /health `extra.edits`
+    lists body_part)."""
 
     op: Literal["body_part"]
     segment: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(

@@ -79,7 +79,9 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     (service/uploads.py; /health `extra.uploads`). A 422 names the field: `handle` for a handle that is corrupted,
     altered, out of the model's ranges or another model's (the message names the part: `handle.checksum`,
     `handle.segments.0.codes`, `handle.model`), `motion...` for an upload the model cannot encode or that is out of
-    the limits, `edits.<i>...` for an edit the handle or the model does not allow."""
+    the limits, `edits.<i>...` for an edit the handle or the model does not allow. A diffusion model's handle is a
+    recipe (`t2m2.`: its request and the edits made since, replayed to the same frames) and its edits are made on
+    its frames by its own inpainting (docs/api.md)."""
     model = _model_of(body, state)
     limits = model.limits
     if limits.recipe:
