@@ -85,7 +85,7 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     model = _model_of(body, state)
     limits = model.limits
     if limits.recipe:
-        return await _edit_recipe(body, model)
+        return await _edit_recipe(body, model, state)
     try:
         if body.motion is not None:
             handle = await run_in_threadpool(uploaded_handle, body.motion, limits,
@@ -109,7 +109,7 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
     return await motion_answer(motion, body.format, limits, request, {"edited": edited})
 
-async def _edit_recipe(body: EditRequest, model: ServedModel) -> Response:
+async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceState) -> Response:
     """A diffusion model's edit (service/diffusion_edits.py): the handle is a recipe, replayed and edited on the
     model's frames in a worker thread (the engine directly, not through the batcher)."""
     if body.handle is None:
@@ -124,6 +124,8 @@ async def _edit_recipe(body: EditRequest, model: ServedModel) -> Response:
         raise RequestValidationError([error.error()]) from None
     motion = result.motion
     request = GenerationRequest([SegmentRequest(s.text, None) for s in motion.segments], seed=motion.seed)
+    made = [motion.segments[index] for index, _ in result.edited]
+    state.metrics.count_generation(model.name, sum(s.end_frame - s.start_frame for s in made), len(made))
     edited = [{"segment": index, "seed": seed} for index, seed in result.edited]
     return await motion_answer(motion, body.format, model.limits, request, {"edited": edited})
 
