@@ -38,8 +38,8 @@ import numpy as np
 
 __all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "Denoiser", "DiffusionChain", "DiffusionJob", "JoinWindow", "NoiseSource",
            "Schedule", "SegmentChain", "chain_calls", "cosine_alpha_bar", "cosine_betas", "cosine_schedule",
-           "denoise_step", "guided", "join_windows", "noise_from", "official_to_frames", "run_jobs", "sample",
-           "sample_chains", "sample_segment_chains", "start"]
+           "denoise_step", "guided", "join_windows", "noise_from", "numbered_join_windows", "official_to_frames",
+           "run_jobs", "sample", "sample_chains", "sample_segment_chains", "start"]
 
 MDM_GUIDANCE = 2.5   # generate.py's default guidance_param
 DIP_GUIDANCE = 7.5   # DiP.md's command line
@@ -464,9 +464,14 @@ def join_windows(frames: Sequence[int], join: int, context: int) -> list[JoinWin
     frames made anew after up to `context` known ones. A segment lends each of its two joins at most half of its
     frames (its only join: all of them), so windows never overlap; a side lending fewer than join + context frames
     makes half of them anew (at most `join`) and keeps the rest. No window where nothing would be made anew."""
+    return [window for _, window in numbered_join_windows(frames, join, context)]
+
+
+def numbered_join_windows(frames: Sequence[int], join: int, context: int) -> list[tuple[int, JoinWindow]]:
+    """join_windows with each window's join k (between segments k and k + 1)."""
     if join < 0 or context < 0:
         raise ValueError(f"join and context frames must be >= 0, got {join} and {context}")
-    windows: list[JoinWindow] = []
+    windows: list[tuple[int, JoinWindow]] = []
     boundary = 0
     last = len(frames) - 1
     for k in range(last):
@@ -480,6 +485,6 @@ def join_windows(frames: Sequence[int], join: int, context: int) -> list[JoinWin
         (made_left, known_left), (made_right, known_right) = sides
         if made_left + made_right == 0:
             continue
-        windows.append(JoinWindow(start=boundary - made_left - known_left, end=boundary + made_right + known_right,
-                                  before=known_left, after=known_right))
+        windows.append((k, JoinWindow(start=boundary - made_left - known_left,
+                                      end=boundary + made_right + known_right, before=known_left, after=known_right)))
     return windows

@@ -48,6 +48,8 @@ OPTIONAL_FIELDS: dict[str, FieldRule] = {
     "diffusion.prefix": (is_str, "null or the name of the prefix file, such as 'prefix.npy'"),
     "quantization.denoiser": QUANTIZATION,
 }
+# POST /edit's kinds both MDM and DiP make (service/diffusion_edits.py)
+DIFFUSION_EDITS = frozenset({"regenerate", "append", "prepend", "in_between", "body_part"})
 # the common fields whose meaning is fixed here: the "codes" are the frames themselves
 FIXED_COMMON = {"frames_per_token": 1, "codebook_size": 1, "residual_layers": 1}
 
@@ -100,11 +102,11 @@ class DiffusionFamily(ModelFamily):
 
     def capabilities_of(self, manifest: Any) -> Capabilities:
         """DiP streams call by call (each call's frames are final: later calls only read them); MDM's whole motions
-        do not, and MDM's known-value inpainting (MDM's editing modes) is in its loop."""
+        do not. Both edit by their loop's known-value inpainting (MDM's editing modes; DiP's calls with known frames
+        at their end): every edit kind (service/diffusion_edits.py), their answers' handles recipes."""
         if manifest.settings.chained:
-            return Capabilities(early_frames=True)
-        return Capabilities(edits=frozenset({"in_between", "body_part"}),
-                            why_not_early=self.capabilities.why_not_early)
+            return Capabilities(early_frames=True, edits=DIFFUSION_EDITS, inpaints=True)
+        return Capabilities(edits=DIFFUSION_EDITS, inpaints=True, why_not_early=self.capabilities.why_not_early)
 
     def check_consistency(self, manifest: Mapping[str, Any]) -> None:
         for field, value in FIXED_COMMON.items():

@@ -16,7 +16,7 @@ import numpy as np
 
 from t2m.decoding.inpaint import Inpaint
 
-__all__ = ["CONTEXT_ROWS", "inpaint_map"]
+__all__ = ["CONTEXT_ROWS", "context_sides", "inpaint_map"]
 
 CONTEXT_ROWS = 10   # kept code rows on each side of an edit (2 s at 4 frames per row and 20 fps)
 
@@ -36,9 +36,10 @@ def _kept_run(segments: Sequence[_Planned], indices: range) -> list[np.ndarray]:
     return run
 
 
-def _sides(before: int, after: int, room: int) -> tuple[int, int]:
-    """Context rows (before, after) from what each side has, each at most CONTEXT_ROWS, together at most `room`."""
-    left, right = min(before, CONTEXT_ROWS), min(after, CONTEXT_ROWS)
+def context_sides(before: int, after: int, room: int, most: int = CONTEXT_ROWS) -> tuple[int, int]:
+    """Context rows (before, after) from what each side has, each at most `most`, together at most `room` (the
+    longer side gives first); also the diffusion family's in-between frames (service/diffusion_edits.py)."""
+    left, right = min(before, most), min(after, most)
     while left + right > max(room, 0):
         if left >= right:
             left -= 1
@@ -57,7 +58,7 @@ def inpaint_map(segments: Sequence[_Planned], position: int, own: np.ndarray, fi
     after = _kept_run(segments, range(position + 1, len(segments)))
     left_codes = np.concatenate([empty, *before])
     right_codes = np.concatenate([empty, *after])
-    left, right = _sides(len(left_codes), len(right_codes), max_rows - len(own))
+    left, right = context_sides(len(left_codes), len(right_codes), max_rows - len(own))
     known = np.concatenate([left_codes[len(left_codes) - left:], own, right_codes[:right]]).astype(np.int64)
     kept = np.zeros((left, shape[0]), dtype=bool)
     full_fill = np.concatenate([kept, fill, np.zeros((right, shape[0]), dtype=bool)])

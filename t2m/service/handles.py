@@ -22,10 +22,8 @@ failure is a HandleError naming the part of the handle that is wrong (a 422 over
 from __future__ import annotations
 
 import base64
-import binascii
 import hashlib
 import json
-import math
 import struct
 import zlib
 from collections.abc import Sequence
@@ -35,10 +33,19 @@ from typing import Any
 import numpy as np
 
 from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
+from t2m.service.handle_format import (
+    CHECKSUM_BYTES,
+    HANDLE_PREFIX,
+    MAX_HANDLE_CHARS,
+    HandleError,
+    _no_constant,
+    _number,
+    _packed,
+    model_seed_guidance,
+)
+from t2m.service.recipes import RECIPE_PREFIX, make_recipe, recipe_model
 from t2m.service.schemas import (
     MAX_DURATION_S,
-    MAX_GUIDANCE,
-    MAX_SEED,
     MAX_SEGMENTS,
     MAX_TEMPERATURE,
     MAX_TEXT_CHARS,
@@ -49,21 +56,10 @@ from t2m.service.schemas import (
 __all__ = ["HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "HandleSegment", "MotionHandle", "handle_model",
            "make_handle", "read_handle", "segment_seed"]
 
-HANDLE_PREFIX = "t2m1."
-MAX_HANDLE_CHARS = 2_000_000      # the string; the decompressed body is bounded per model (`_max_body`)
-CHECKSUM_BYTES = 16
 MAX_META_BYTES = 64 * 1024        # 32 segments of 300 characters, escaped, and the rest
 META_KEYS = ("model", "version", "seed", "guidance", "temperature", "top_k", "shape", "width", "segments")
 SEGMENT_KEYS = ("text", "duration", "steps")
 SEED_BITS = 31
-
-
-class HandleError(ValueError):
-    """A handle that cannot be used with this model; `part` names what is wrong ("handle.segments.1.codes")."""
-
-    def __init__(self, part: str, message: str) -> None:
-        super().__init__(f"{part}: {message}")
-        self.part = part
 
 
 @dataclass(frozen=True)
@@ -106,7 +102,10 @@ def _width(limits: ModelLimits) -> int:
 
 def make_handle(limits: ModelLimits, request: GenerationRequest, codes: Sequence[np.ndarray] | None) -> str | None:
     """The handle of an answer of the model of `limits` to `request` with these segment codes; None when the model's
-    codes are not tokens (no `limits.codes`) or the motion carries none."""
+    codes are not tokens (no `limits.codes`) or the motion carries none. A model whose answers are made again from
+    their request (`limits.recipe`: the diffusion family) gets the recipe of `request` (service/recipes.py)."""
+    if limits.recipe:
+        return make_recipe(limits, request)
     layout = limits.codes
     if layout is None or codes is None or len(codes) != len(request.segments):
         return None
@@ -132,22 +131,6 @@ def _max_body(limits: ModelLimits) -> int:
     return 4 + MAX_META_BYTES + MAX_SEGMENTS * limits.max_tokens * limits.codes.values * _width(limits)
 
 
-def _packed(handle: str) -> tuple[bytes, bytes]:
-    """(checksum, compressed body) of a handle string."""
-    if not isinstance(handle, str) or not handle.startswith(HANDLE_PREFIX):
-        raise HandleError("handle", f"not a t2m handle (it starts with {HANDLE_PREFIX!r}, the format version)")
-    if len(handle) > MAX_HANDLE_CHARS:
-        raise HandleError("handle", f"{len(handle)} characters, more than {MAX_HANDLE_CHARS}")
-    text = handle[len(HANDLE_PREFIX):]
-    try:
-        packed = base64.b64decode(text + "=" * (-len(text) % 4), altchars=b"-_", validate=True)
-    except (binascii.Error, ValueError):
-        raise HandleError("handle", "not base64url") from None
-    if len(packed) <= CHECKSUM_BYTES:
-        raise HandleError("handle", "truncated")
-    return packed[:CHECKSUM_BYTES], packed[CHECKSUM_BYTES:]
-
-
 def _unpack(handle: str, limits: ModelLimits) -> bytes:
     """The checked body of a handle string."""
     checksum, compressed = _packed(handle)
@@ -169,7 +152,9 @@ def _unpack(handle: str, limits: ModelLimits) -> bytes:
 
 def handle_model(handle: str) -> tuple[str, str]:
     """The (name, version) of the model a handle names, read from its description alone (nothing else checked
-    yet: `read_handle` does that with the model's limits)."""
+    yet: `read_handle` does that with the model's limits). A diffusion model's recipe (service/recipes.py) too."""
+    if isinstance(handle, str) and handle.startswith(RECIPE_PREFIX):
+        return recipe_model(handle)
     _, compressed = _packed(handle)
     try:
         start = zlib.decompressobj().decompress(compressed, 4 + MAX_META_BYTES)
@@ -198,34 +183,13 @@ def _meta(body: bytes) -> tuple[dict[str, Any], bytes]:
     return meta, body[4 + size:]
 
 
-def _no_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a number")
-
-
-def _number(meta: dict[str, Any], key: str, low: float, high: float, *, integer: bool = False,
-            low_open: bool = False) -> Any:
-    value = meta[key]
-    kinds = (int,) if integer else (int, float)
-    if isinstance(value, bool) or not isinstance(value, kinds) or not math.isfinite(value) or not (
-            (low < value) if low_open else (low <= value)) or value > high:
-        kind = "an integer" if integer else "a number"
-        raise HandleError(f"handle.{key}", f"must be {kind} in {'(' if low_open else '['}{low:g}, {high:g}], got "
-                                           f"{value!r}")
-    return value
-
-
 def read_handle(handle: str, limits: ModelLimits) -> MotionHandle:
     """The handle checked against the model of `limits` (see the module's docstring), or a HandleError."""
     layout = limits.codes
     if layout is None:
-        raise HandleError("handle", f"model {limits.name!r} makes no token codes: its answers carry no handle")
+        raise HandleError("handle", f"model {limits.name!r} makes no token codes: its handles are recipes ('t2m2.')")
     meta, code_bytes = _meta(_unpack(handle, limits))
-    if meta["model"] != limits.name or meta["version"] != limits.version:
-        raise HandleError("handle.model", f"made by model {meta['model']!r} version {meta['version']!r}, not by "
-                                          f"{limits.name!r} version {limits.version!r}: a handle is edited by the "
-                                          "model that made it")
-    seed = _number(meta, "seed", 0, MAX_SEED, integer=True)
-    guidance = float(_number(meta, "guidance", 0.0, MAX_GUIDANCE))
+    seed, guidance = model_seed_guidance(meta, limits)
     temperature = float(_number(meta, "temperature", 0.0, MAX_TEMPERATURE, low_open=True))
     top_k = meta["top_k"]
     if top_k is not None:

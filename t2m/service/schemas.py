@@ -189,7 +189,7 @@ class ContinueEdit(_Strict):
 
 class InBetweenEdit(_Strict):
     """Fill a gap at the join after segment `after` with a new segment of this text and duration, keeping both
-    sides (a family whose loop inpaints: the masked family)."""
+    sides (a family whose loop inpaints: the masked and diffusion families)."""
 
     op: Literal["in_between"]
     after: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(
@@ -202,7 +202,8 @@ class InBetweenEdit(_Strict):
 
 class BodyPartEdit(_Strict):
     """Regenerate some joints of one segment (over all of it, or from `start` to `end` seconds into it), keeping the
-    other joints' tokens (a joint-token masked model: /health `extra.edits` lists body_part)."""
+    other joints' tokens (a joint-token masked model) or feature channels (a diffusion model: /health `extra.edits`
+    lists body_part)."""
 
     op: Literal["body_part"]
     segment: Annotated[int, Field(ge=0), BeforeValidator(_json_integer)] = Field(
@@ -341,8 +342,9 @@ class MotionResponse(BaseModel):
     warnings: list[str] = Field(default_factory=list)
     handle: str | None = Field(
         None, description="The motion's codes, segments and options in one compact string (`t2m1.` + base64url; "
-                          "docs/api.md): send it to POST /edit to change some segments and keep the others. null "
-                          "for a model whose codes are not tokens (the diffusion family).")
+                          "docs/api.md): send it to POST /edit to change some segments and keep the others. A "
+                          "diffusion model's is its recipe instead (`t2m2.`: seed, guidance, segments and the edits "
+                          "made since, which make its frames again exactly).")
 
 
 class EditResponse(MotionResponse):

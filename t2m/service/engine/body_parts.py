@@ -7,12 +7,19 @@ its columns are those whose joints are mostly (more than half) the part's: on SM
 the neck and collars, head, shoulders, elbows and wrists (columns 3-5) and "lower_body" the pelvis and hips, ankles
 and left foot (columns 0 and 2); column 1 (spine1, spine2, both knees) belongs to neither, so an edit of one half
 keeps it. A map of one column (MoMask's 1D tokens) or a layout that does not match has no parts.
+
+The diffusion family edits feature channels instead (`part_channels`): in HumanML3D's layout (t2m/motion/features.py:
+root 4, ric 3(J-1), rotations 6(J-1), velocities 3J, foot contacts 4) "lower_body" is the root's channels, the lower
+joints' ric, rotation and velocity channels and the foot contacts, exactly MDM's HML_LOWER_BODY_MASK (its edit.py
+upper_body mode keeps those and regenerates the rest), and "upper_body" every other channel.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-__all__ = ["BODY_PARTS", "joint_columns", "part_columns"]
+import numpy as np
+
+__all__ = ["BODY_PARTS", "joint_columns", "part_channels", "part_columns"]
 
 UPPER = ("spine3", "neck", "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow",
          "right_elbow", "left_wrist", "right_wrist", "spine1", "spine2")
@@ -50,3 +57,24 @@ def part_columns(joint_names: Sequence[str], columns: int) -> dict[str, tuple[in
         if 0 < len(chosen) < columns:
             parts[part] = chosen
     return parts
+
+
+def part_channels(joint_names: Sequence[str], features: int) -> dict[str, tuple[int, ...]]:
+    """Each body part's feature channels of a HumanML3D feature row of `features` channels (12 J - 1 for J joints,
+    joint 0 the root), or {} for another layout."""
+    joints = len(joint_names)
+    if joints < 2 or features != 12 * joints - 1:
+        return {}
+    lower = np.zeros(features, bool)
+    lower[:4] = True                                        # root: rotation velocity, x/z velocity, height
+    ric, rot, vel = 4, 4 + 3 * (joints - 1), 4 + 9 * (joints - 1)
+    for joint, name in enumerate(joint_names):
+        if name not in BODY_PARTS["lower_body"]:
+            continue
+        if joint > 0:
+            lower[ric + 3 * (joint - 1):ric + 3 * joint] = True
+            lower[rot + 6 * (joint - 1):rot + 6 * joint] = True
+        lower[vel + 3 * joint:vel + 3 * joint + 3] = True
+    lower[features - 4:] = True                             # foot contacts
+    return {"upper_body": tuple(int(c) for c in np.flatnonzero(~lower)),
+            "lower_body": tuple(int(c) for c in np.flatnonzero(lower))}

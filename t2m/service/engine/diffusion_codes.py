@@ -13,6 +13,9 @@ null rows and concurrent requests together), then de-normalised by the engine's 
   standing pose) starts the first call; after each call the frames kept so far are final and go to the request's
   streaming hook (`progress`).
 - temperature and top_k have no meaning here: anything but temperature 1 and no top_k is refused naming the field.
+- Edits (POST /edit, service/diffusion_edits.py): `inpaint` denoises frames with some values known (MDM: one window;
+  DiP: calls of pred_len after a given prefix, the known values imposed wherever they fall); answers' handles are
+  recipes (`recipe_handles`: service/recipes.py), and `body_parts` are feature channels (engine/body_parts.py).
 """
 from __future__ import annotations
 
@@ -26,13 +29,18 @@ import onnxruntime as ort
 from t2m.bundle import BundleError
 from t2m.decoding.diffusion import (
     DiffusionJob,
+    JoinWindow,
     NoiseSource,
     SegmentChain,
+    _next_prefix,
     cosine_schedule,
     join_windows,
+    numbered_join_windows,
     run_jobs,
     sample_segment_chains,
 )
+from t2m.motion.skeleton import get_skeleton
+from t2m.service.engine.body_parts import part_channels
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.reach import DecoderReach
 from t2m.service.engine.requests import segment_steps
@@ -134,6 +142,7 @@ class DiffusionCodes:
     """Requests -> per-segment normalised frames with the bundle's denoiser graph."""
 
     ends_segments = None   # no length estimator: every segment needs a duration
+    recipe_handles = True  # no codes: an answer's handle is its recipe (service/recipes.py)
 
     def __init__(self, bundle: Bundle) -> None:
         manifest = bundle.manifest
@@ -142,6 +151,7 @@ class DiffusionCodes:
         self.schedule = cosine_schedule(self.settings.steps)
         self.denoiser: Any = OnnxDenoiser(bundle.sessions["denoiser.onnx"])
         self.decoder_reach = frame_reach(bundle.decoder_session, self.features)
+        self.body_parts = part_channels(get_skeleton(manifest.skeleton).joint_names, self.features)
         self.prefix: np.ndarray | None = None
         if self.settings.chained:
             path = bundle.path / str(self.settings.prefix)
@@ -181,6 +191,61 @@ class DiffusionCodes:
         if self.settings.chained:
             return self._chains(jobs, on_step)
         return self._whole(jobs, on_step)
+
+    # ------------------------------------------------------------------------------------------------ edits
+
+    def prefix_before(self, frames: np.ndarray) -> np.ndarray:
+        """DiP: the clean frames a call after `frames` [n, F] starts from (the bundle's standing pose before the
+        first frames, as the first call of a request)."""
+        assert self.prefix is not None
+        return _next_prefix(self.prefix, np.asarray(frames, np.float32))
+
+    def inpaint(self, job: DiffusionRequest, known: np.ndarray, known_mask: np.ndarray,
+                prefix: np.ndarray | None = None, segment: int = 0) -> np.ndarray:
+        """Frames [W, F] made with the job's `segment`-th text, its guidance and generator where `known_mask`
+        ([W, F] or [W, 1]) is False, the `known` values elsewhere (imposed on x0 at every step, and exactly in the
+        answer). MDM: one window of W frames (W <= max_tokens). DiP: ceil(W / pred_len) calls after `prefix` (a
+        call's frames past W are free and dropped), each call continuing from the frames kept before it."""
+        text, mask = job.texts[segment], None if job.text_masks is None else job.text_masks[segment]
+        known = np.asarray(known, np.float32)
+        known_mask = np.broadcast_to(np.asarray(known_mask, bool), known.shape)
+        width = self.settings.pred_len if self.settings.chained else len(known)
+        context = prefix
+        made = []
+        for first in range(0, len(known), width):
+            kept = min(width, len(known) - first)
+            values = np.zeros((width, self.features), np.float32)
+            where = np.zeros((width, self.features), bool)
+            values[:kept], where[:kept] = known[first:first + kept], known_mask[first:first + kept]
+            call = DiffusionJob(text=text, text_mask=mask, frames=width, rng=job.rng, guidance=job.guidance,
+                                prefix=context, known=values, known_mask=where, noise=job.noise)
+            run_jobs(self.denoiser, self.schedule, [call], self.features)
+            made.append(call.x[:kept])
+            if context is not None:
+                context = _next_prefix(context, call.x[:kept])
+        return np.where(known_mask, known, np.concatenate(made)).astype(np.float32)
+
+    def whole(self, job: DiffusionRequest) -> list[np.ndarray]:
+        """MDM: each segment of the job a whole motion (one batch), as /generate makes them before its joins."""
+        made = [DiffusionJob(text=job.texts[k], frames=frames, rng=job.rng, guidance=job.guidance,
+                             text_mask=None if job.text_masks is None else job.text_masks[k], noise=job.noise)
+                for k, frames in enumerate(job.frames)]
+        run_jobs(self.denoiser, self.schedule, made, self.features)
+        return [one.x for one in made]
+
+    def rejoin(self, job: DiffusionRequest, parts: Sequence[np.ndarray], joins: set[int]) -> list[np.ndarray]:
+        """MDM: the segments `parts` with the joins k in `joins` (between parts k and k + 1) in-betweened as
+        /generate's joins are (the windows of all the parts' joins, only those made again), in one batch."""
+        frames = [len(part) for part in parts]
+        windows = [window for k, window in numbered_join_windows(frames, self.settings.join_frames,
+                                                                 self.settings.join_context) if k in joins]
+        motion = np.concatenate(parts)
+        edits = [self._join_job(job, motion, window) for window in windows]
+        if edits:
+            run_jobs(self.denoiser, self.schedule, edits, self.features)
+        for window, edit in zip(windows, edits):
+            motion[window.start:window.end] = edit.x
+        return np.split(motion, np.cumsum(frames)[:-1])
 
     # ------------------------------------------------------------------------------------------------ DiP
 
@@ -233,6 +298,12 @@ class DiffusionCodes:
             return np.zeros(dim, np.float32), None
         return np.zeros((1, dim), np.float32), np.ones(1, bool)
 
+    def _join_job(self, job: DiffusionRequest, motion: np.ndarray, window: JoinWindow) -> DiffusionJob:
+        """The in-between of one join window of a request's motion: the unconditional model, its sides known."""
+        text, mask = self._null_text(job)
+        return DiffusionJob(text=text, text_mask=mask, frames=window.frames, rng=job.rng, guidance=1.0,
+                            known=motion[window.start:window.end], known_mask=window.known_mask(), noise=job.noise)
+
     def _join(self, jobs: Sequence[DiffusionRequest], made: list[list[np.ndarray] | None],
               on_step: Callable[[int], None] | None) -> None:
         """In-between each join of a request's sentences (in place), every join of every request in one batch."""
@@ -242,11 +313,8 @@ class DiffusionCodes:
             if parts is None or len(parts) < 2 or s.join_frames == 0:
                 continue
             motion = np.concatenate(parts)
-            text, mask = self._null_text(job)
             for window in join_windows(job.frames, s.join_frames, s.join_context):
-                windows.append((window, DiffusionJob(
-                    text=text, text_mask=mask, frames=window.frames, rng=job.rng, guidance=1.0,
-                    known=motion[window.start:window.end], known_mask=window.known_mask(), noise=job.noise)))
+                windows.append((window, self._join_job(job, motion, window)))
                 owners.append(index)
         if not windows:
             return

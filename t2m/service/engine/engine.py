@@ -101,7 +101,8 @@ class OnnxEngine:
             ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits,
             inpaints=self.capabilities.inpaints,
             body_parts=dict(getattr(self.codes, "body_parts", {})) if "body_part" in self.capabilities.edits else {},
-            encodes=bundle.encoder_session is not None and code_layout(self.codes) is not None)
+            encodes=bundle.encoder_session is not None and code_layout(self.codes) is not None,
+            recipe=bool(getattr(self.codes, "recipe_handles", False)))
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -236,7 +237,8 @@ class OnnxEngine:
         handle's against `limits.codes`)."""
         if len(segment_codes) != len(request.segments):
             raise ValueError(f"{len(segment_codes)} code arrays for {len(request.segments)} segments")
-        return self._motion(request, [np.asarray(codes, dtype=np.int64) for codes in segment_codes], [])
+        dtype = np.float32 if self.limits.recipe else np.int64   # the diffusion family's codes are its frames
+        return self._motion(request, [np.asarray(codes, dtype=dtype) for codes in segment_codes], [])
 
     def continuous(self, order: StepOrder | None = None) -> RunningCohorts | None:
         """A continuous-batching session (requests join and leave at step boundaries; `order` picks the cohorts

@@ -100,6 +100,7 @@ class ModelLimits:
     inpaints: bool = False   # its edits fill masked tokens with the kept ones around them (the masked family)
     body_parts: dict[str, tuple[int, ...]] = field(default_factory=dict)   # body_part edits: part -> token columns
     encodes: bool = False    # its bundle has encoder.onnx: POST /edit takes uploaded motions (service/uploads.py)
+    recipe: bool = False     # its answers' handles are recipes (service/recipes.py: the diffusion family's frames)
 
     def guidance(self, requested: float | None = None) -> float:
         """The guidance scale to use: the requested one, else the model's default (1 = off for a model without a
@@ -172,6 +173,7 @@ class Motion:
     tokens: int = 0             # code tokens generated (for metrics)
     warnings: list[str] = field(default_factory=list)
     codes: list[np.ndarray] | None = None   # each segment's codes as decoded (what an answer's handle keeps)
+    handle: str | None = None   # the answer's handle when it is made with the motion (a diffusion edit's recipe)
 
 
 class RequestLimitError(ValueError):

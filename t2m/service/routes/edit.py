@@ -14,8 +14,9 @@ from fastapi.exceptions import RequestValidationError
 from starlette.concurrency import run_in_threadpool
 
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
+from t2m.service.diffusion_edits import edit_recipe
 from t2m.service.editing import EditError, EditPlan, plan_edit
-from t2m.service.engine.types import Motion, RequestLimitError
+from t2m.service.engine.types import GenerationRequest, Motion, RequestLimitError, SegmentRequest
 from t2m.service.formats import STREAM_MEDIA_TYPE
 from t2m.service.handles import HandleError, handle_model, read_handle
 from t2m.service.registry import ServedModel
@@ -78,9 +79,13 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     (service/uploads.py; /health `extra.uploads`). A 422 names the field: `handle` for a handle that is corrupted,
     altered, out of the model's ranges or another model's (the message names the part: `handle.checksum`,
     `handle.segments.0.codes`, `handle.model`), `motion...` for an upload the model cannot encode or that is out of
-    the limits, `edits.<i>...` for an edit the handle or the model does not allow."""
+    the limits, `edits.<i>...` for an edit the handle or the model does not allow. A diffusion model's handle is a
+    recipe (`t2m2.`: its request and the edits made since, replayed to the same frames) and its edits are made on
+    its frames by its own inpainting (docs/api.md)."""
     model = _model_of(body, state)
     limits = model.limits
+    if limits.recipe:
+        return await _edit_recipe(body, model, state)
     try:
         if body.motion is not None:
             handle = await run_in_threadpool(uploaded_handle, body.motion, limits,
@@ -103,6 +108,27 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
     edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
     return await motion_answer(motion, body.format, limits, request, {"edited": edited})
+
+async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceState) -> Response:
+    """A diffusion model's edit (service/diffusion_edits.py): the handle is a recipe, replayed and edited on the
+    model's frames in a worker thread (the engine directly, not through the batcher)."""
+    if body.handle is None:
+        raise RequestValidationError([{"type": "value_error", "loc": ("body", "motion"), "msg": f"model "
+                                       f"{model.limits.name!r} is a diffusion model: it edits the motions it made "
+                                       "(their handles), not uploads", "input": None}])
+    try:
+        result = await run_in_threadpool(edit_recipe, model.engine, body.handle, body.edits)
+    except HandleError as error:
+        raise _handle_error(error) from None
+    except EditError as error:
+        raise RequestValidationError([error.error()]) from None
+    motion = result.motion
+    request = GenerationRequest([SegmentRequest(s.text, None) for s in motion.segments], seed=motion.seed)
+    made = [motion.segments[index] for index, _ in result.edited]
+    state.metrics.count_generation(model.name, sum(s.end_frame - s.start_frame for s in made), len(made))
+    edited = [{"segment": index, "seed": seed} for index, seed in result.edited]
+    return await motion_answer(motion, body.format, model.limits, request, {"edited": edited})
+
 
 async def _sample(plan: EditPlan, model: ServedModel, state: ServiceState) -> list[Motion]:
     """The plan's parts through the model's batcher together (each its own request and seed); one failing cancels

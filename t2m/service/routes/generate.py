@@ -100,7 +100,8 @@ async def motion_answer(motion: Motion, fmt: str, limits: ModelLimits, request: 
                         extra: dict[str, Any] | None = None) -> Response:
     """The answer of a motion made for `request` (its json with the handle and `extra`'s fields, or the file), with
     its headers: X-Seed (the request's), X-T2M-Warnings, a file's Content-Disposition."""
-    handle = make_handle(limits, request, motion.codes) if fmt == "json" else None
+    handle = None if fmt != "json" else motion.handle if motion.handle is not None else make_handle(
+        limits, request, motion.codes)
     rendered = await run_in_threadpool(render, motion, fmt, limits, handle, extra)
     headers = {"X-Seed": str(request.seed)}
     if motion.warnings:
