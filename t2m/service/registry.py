@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from t2m.service.engine.types import Engine, ModelLimits
-from t2m.service.scheduling import QueuedWorkers
+from t2m.service.scheduling import QueuedWorkers, SerialWork
 
 __all__ = ["DuplicateModelError", "LoadedEngine", "ModelLoadError", "ModelRegistry", "ServedModel", "load_engines"]
 
@@ -41,6 +41,7 @@ class ServedModel:
     engine: Engine
     batcher: QueuedWorkers
     load_seconds: float
+    serial: SerialWork = field(default_factory=SerialWork)   # edits that bypass the batcher (diffusion recipes)
 
     @property
     def limits(self) -> ModelLimits:

@@ -27,12 +27,14 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol, TypeVar
 
 from t2m.service.engine.continuous import Sampled
 from t2m.service.engine.requests import segment_steps
 from t2m.service.engine.step_order import ShortestFirst, StepOrder
 from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
+
+T = TypeVar("T")
 
 __all__ = [
     "CohortRunner",
@@ -42,6 +44,7 @@ __all__ = [
     "QueueFullError",
     "QueuedRequest",
     "QueuedWorkers",
+    "SerialWork",
     "admit",
     "batcher_for",
     "rows_of",
@@ -57,6 +60,22 @@ class QueueFullError(RuntimeError):
 
 class GenerationTimeout(TimeoutError):
     """The request did not finish within its time limit."""
+
+
+class SerialWork:
+    """Work that does not go through a model's batcher (a diffusion edit: its recipe replayed on the engine) run one
+    at a time per model, and never started once its deadline has passed: a caller that timed out waiting (a 504)
+    leaves no work behind it; only the one edit already running finishes late."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+
+    def run(self, deadline: float, work: Callable[..., T], *args: Any) -> T:
+        """`work(*args)` in turn; GenerationTimeout when its turn comes after `deadline` (time.monotonic())."""
+        with self._lock:
+            if time.monotonic() >= deadline:
+                raise GenerationTimeout("the edit waited past its time limit behind other edits of this model")
+            return work(*args)
 
 
 def rows_of(request: GenerationRequest) -> int:

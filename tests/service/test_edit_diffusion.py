@@ -348,3 +348,36 @@ def test_append_and_prepend_keep_the_motion(engines, originals, arch, op):
     else:
         after = int(np.flatnonzero(~kept)[-1]) + 1 if not kept.all() else 0
         assert_rigidly_moved(joints[36 + after:], motion.joints[after:])
+
+
+def test_an_edit_past_its_time_limit_is_a_504_and_queued_work_past_its_deadline_never_runs(bundles, make_client):
+    """Diffusion edits bypass the batcher: they still answer 504 after T2M_REQUEST_TIMEOUT_S, and one whose turn
+    (ServedModel.serial, one edit of a model at a time) comes after its deadline is not started at all."""
+    import threading
+    import time
+
+    from t2m.service.scheduling import GenerationTimeout, SerialWork
+
+    client = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1, request_timeout_s=1e-4))
+    handle = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1)).post(
+        "/generate", json={"segments": [{"text": "a person walks", "duration": 1.0}], "seed": 1}).json()["handle"]
+    late = client.post("/edit", json={"handle": handle, "edits": [{"op": "append", "segments": [
+        {"text": "a person sits down", "duration": 1.0}]}]})
+    assert late.status_code == 504 and "T2M_REQUEST_TIMEOUT_S" in late.json()["detail"]
+
+    serial, ran = SerialWork(), []
+    holding = threading.Event()
+
+    def hold() -> None:
+        holding.set()
+        time.sleep(0.3)
+        ran.append("first")
+
+    first = threading.Thread(target=serial.run, args=(time.monotonic() + 10, hold))
+    first.start()
+    holding.wait()
+    with pytest.raises(GenerationTimeout, match="waited past its time limit"):
+        serial.run(time.monotonic() + 0.05, ran.append, "second")   # its turn comes after its deadline
+    first.join()
+    assert ran == ["first"]
+    assert serial.run(time.monotonic() + 10, lambda: "third") == "third"

@@ -7,6 +7,7 @@ Stateless: the handle carries everything (service/handles.py)."""
 from __future__ import annotations
 
 import asyncio
+import time
 from typing import Any
 
 from fastapi import APIRouter, Depends, Response
@@ -21,6 +22,7 @@ from t2m.service.formats import STREAM_MEDIA_TYPE
 from t2m.service.handles import HandleError, handle_model, read_handle
 from t2m.service.registry import ServedModel
 from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
+from t2m.service.scheduling import GenerationTimeout
 from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
 from t2m.service.uploads import uploaded_handle
 
@@ -111,13 +113,20 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
 
 async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceState) -> Response:
     """A diffusion model's edit (service/diffusion_edits.py): the handle is a recipe, replayed and edited on the
-    model's frames in a worker thread (the engine directly, not through the batcher)."""
+    model's frames in a worker thread (the engine directly, not through the batcher): one edit of a model at a time
+    (ServedModel.serial), a 504 past T2M_REQUEST_TIMEOUT_S, and an edit whose turn comes after that never runs."""
     if body.handle is None:
         raise RequestValidationError([{"type": "value_error", "loc": ("body", "motion"), "msg": f"model "
                                        f"{model.limits.name!r} is a diffusion model: it edits the motions it made "
                                        "(their handles), not uploads", "input": None}])
+    timeout = state.settings.request_timeout_s
+    deadline = time.monotonic() + timeout
     try:
-        result = await run_in_threadpool(edit_recipe, model.engine, body.handle, body.edits)
+        result = await asyncio.wait_for(
+            run_in_threadpool(model.serial.run, deadline, edit_recipe, model.engine, body.handle, body.edits),
+            timeout)
+    except (TimeoutError, GenerationTimeout):
+        raise http_error(GenerationTimeout(f"the edit did not finish within {timeout:g} s"), state.settings) from None
     except HandleError as error:
         raise _handle_error(error) from None
     except EditError as error:
