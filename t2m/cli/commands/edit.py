@@ -113,12 +113,7 @@ def _edit(args: argparse.Namespace) -> int:
     try:
         handle = body.handle if body.motion is None else uploaded_handle(body.motion, engine.limits, engine.encode)
         assert handle is not None
-        if engine.limits.recipe and isinstance(handle, str):   # diffusion: a recipe, edits made on its frames
-            from t2m.service.diffusion_edits import edit_recipe
-
-            result = edit_recipe(engine, handle, body.edits)
-        else:
-            result = edit_in_process(engine, handle, body.edits)
+        result = edit_in_process(engine, handle, body.edits)
     except EditError as error:               # its field, as POST /edit's 422 names it
         raise CliError(f"{'.'.join(str(part) for part in error.loc[1:])}: {error}") from None
     except (HandleError, RequestLimitError) as error:
