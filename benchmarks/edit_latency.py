@@ -2,7 +2,7 @@
 
 A 3-sentence 8 s motion ("walk 3 s, wave 2 s, bow 3 s") is generated once; then, alternating, the whole request is
 generated again (what a client without /edit does to change the wave) and the wave alone is edited the way POST
-/edit does it (t2m.service.editing.edit_in_process): the handle read back and checked, the edited segment sampled
+/edit does it (t2m.service.edit_runner.edit_with_engine): the handle read back and checked, the edited segment sampled
 alone with its own seed, every code decoded once (OnnxEngine.compose), the new handle written. Medians and p90 of
 --repeats, the handle's size, and how many leading frames stayed bit-identical. Printed, never asserted.
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.service.editing import edit_in_process
+from t2m.service.edit_runner import edit_with_engine
 from t2m.service.engine.engine import OnnxEngine
 from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
 from t2m.service.handles import make_handle, read_handle
@@ -55,7 +55,7 @@ def measure(model: Path, repeats: int, threads: int) -> None:
     edits = [RegenerateEdit(segment=EDITED, text=NEW_TEXT)]
 
     def edit() -> object:
-        return edit_in_process(engine, handle, edits).motion
+        return edit_with_engine(engine, handle, edits).motion
 
     # alternate the two so that a change of the machine's load touches both alike
     whole_ms: list[float] = []

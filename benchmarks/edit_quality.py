@@ -1,5 +1,5 @@
 """Does an edited span follow its new text, and are the edit's borders as smooth as a generated stream's joins?
-(issue 27, "Measured"). Engine level, the path POST /edit takes (t2m.service.editing.edit_in_process).
+(issue 27, "Measured"). Engine level, the path POST /edit takes (t2m.service.edit_runner.edit_with_engine).
 
 Per model and seed: "walk 3 s, wave 2 s, bow 3 s" is generated; its wave is edited into "a person raises the left
 hand"; as the reference, "walk 3 s, raise the left hand 2 s, bow 3 s" is generated whole with the same seed. Printed:
@@ -26,7 +26,7 @@ import numpy as np
 
 from t2m.model.evaluation.foot_skating import foot_skating
 from t2m.model.evaluation.probes import join_smoothness, probe_by_name
-from t2m.service.editing import edit_in_process
+from t2m.service.edit_runner import edit_with_engine
 from t2m.service.engine.engine import OnnxEngine
 from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
 from t2m.service.handles import make_handle
@@ -84,7 +84,7 @@ def measure(model: Path, seeds: int, threads: int) -> None:
         motion = engine.generate(request)
         handle = make_handle(limits, request, motion.codes)
         assert handle is not None, f"{model}: no handle"
-        edit = edit_in_process(engine, handle, [RegenerateEdit(segment=EDITED, text=NEW_TEXT)]).motion
+        edit = edit_with_engine(engine, handle, [RegenerateEdit(segment=EDITED, text=NEW_TEXT)]).motion
         whole = engine.generate(GenerationRequest(
             [SegmentRequest(t, d) for t, d in (BEFORE, (NEW_TEXT, ORIGINAL[1]), AFTER)], seed=seed,
             guidance=guidance))
@@ -113,7 +113,7 @@ def in_between(engine: OnnxEngine, seeds: int, guidance: float) -> None:
         handle = make_handle(limits, request, motion.codes)
         assert handle is not None
         edit = InBetweenEdit(op="in_between", after=0, text=GAP[0], duration=GAP[1])
-        filled.add(edit_in_process(engine, handle, [edit]).motion)
+        filled.add(edit_with_engine(engine, handle, [edit]).motion)
         whole.add(engine.generate(GenerationRequest([SegmentRequest(t, d) for t, d in (BEFORE, GAP, AFTER)],
                                                     seed=seed, guidance=guidance)))
     print(filled.line('in-between (walk | raise both | bow)'))

@@ -1,7 +1,7 @@
 """The README's picture of an edit (issue 27): a motion and the same motion with one segment regenerated.
 
-"walk 3 s, wave 2 s, bow 3 s" is generated once; POST /edit's path (t2m.service.editing.edit_in_process) replaces the
-wave by "a person raises the left hand" and keeps the rest. docs/images/edit.png draws both as rows of the contact
+"walk 3 s, wave 2 s, bow 3 s" is generated once; POST /edit's path (t2m.service.edit_runner.edit_with_engine)
+replaces the wave by "a person raises the left hand" and keeps the rest. docs/images/edit.png draws both as rows of the contact
 sheet (scripts/render_motions.py), each titled with what the raise-left probe measures on its middle segment, and
 the edited row with how many frames stayed bit-identical.
 
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(REPO / "docs" / "images" / "edit.png"), help="the PNG to write")
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args(argv)
-    from t2m.service.editing import edit_in_process
+    from t2m.service.edit_runner import edit_with_engine
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
     from t2m.service.handles import make_handle
     from t2m.service.schemas import RegenerateEdit
@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     if handle is None:
         print(f"error: model {limits.name} makes no handle (its family has no edits)", file=sys.stderr)
         return 2
-    edited = edit_in_process(engine, handle, [RegenerateEdit(segment=EDITED, text=NEW_TEXT)]).motion
+    edited = edit_with_engine(engine, handle, [RegenerateEdit(segment=EDITED, text=NEW_TEXT)]).motion
     same = np.all(edited.joints == motion.joints, axis=(1, 2))
     kept = int(np.argmin(same)) if not same.all() else len(same)
     joins = tuple(span.start_frame for span in motion.segments[1:])

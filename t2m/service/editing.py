@@ -268,13 +268,9 @@ class EditResult:
 def edit_in_process(engine: Any, handle: str | MotionHandle, edits: Sequence[AnyEdit]) -> EditResult:
     """An edit with an OnnxEngine directly, as POST /edit makes it (parts sampled one after the other instead of
     through the queue: the same codes, each request drawing from its own generator); `handle` a handle string or
-    one already read (an uploaded motion's: service/uploads.py); a diffusion model's recipe handle is edited on its
-    frames (service/diffusion_edits.py). HandleError / EditError / RequestLimitError as the route's 422s."""
+    one already read (an uploaded motion's: service/uploads.py). HandleError / EditError / RequestLimitError as the
+    route's 422s."""
     limits = engine.limits
-    if limits.recipe and isinstance(handle, str):
-        from t2m.service.diffusion_edits import edit_recipe
-
-        return edit_recipe(engine, handle, edits)
     kept = handle if isinstance(handle, MotionHandle) else read_handle(handle, limits)
     plan = plan_edit(kept, edits, limits)
     sampled = [engine.generate(part.request) for part in plan.parts]

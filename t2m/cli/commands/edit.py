@@ -101,7 +101,8 @@ def _edit(args: argparse.Namespace) -> int:
     if not args.output.parent.exists():
         raise CliError(f"{args.output.parent}: output directory does not exist")
 
-    from t2m.service.editing import EditError, edit_in_process
+    from t2m.service.edit_runner import edit_with_engine
+    from t2m.service.editing import EditError
     from t2m.service.engine.engine import OnnxEngine
     from t2m.service.engine.types import RequestLimitError
     from t2m.service.formats import render
@@ -113,7 +114,7 @@ def _edit(args: argparse.Namespace) -> int:
     try:
         handle = body.handle if body.motion is None else uploaded_handle(body.motion, engine.limits, engine.encode)
         assert handle is not None
-        result = edit_in_process(engine, handle, body.edits)
+        result = edit_with_engine(engine, handle, body.edits)
     except EditError as error:               # its field, as POST /edit's 422 names it
         raise CliError(f"{'.'.join(str(part) for part in error.loc[1:])}: {error}") from None
     except (HandleError, RequestLimitError) as error:

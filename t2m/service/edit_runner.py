@@ -1,0 +1,20 @@
+"""One entry for an edit made on an engine directly, no server (`t2m edit`, the benchmarks): a token model's handle
+through t2m.service.editing (its parts sampled, the codes decoded once), a diffusion model's recipe through
+t2m.service.diffusion_edits (replayed and inpainted on its frames), as POST /edit chooses between them."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from t2m.service.diffusion_edits import edit_recipe
+from t2m.service.editing import AnyEdit, EditResult, edit_in_process
+from t2m.service.handles import MotionHandle
+
+__all__ = ["edit_with_engine"]
+
+
+def edit_with_engine(engine: Any, handle: str | MotionHandle, edits: Sequence[AnyEdit]) -> EditResult:
+    """The edit of `handle` (a handle or recipe string, or an uploaded motion's read handle) by `engine`'s model."""
+    if engine.limits.recipe and isinstance(handle, str):
+        return edit_recipe(engine, handle, edits)
+    return edit_in_process(engine, handle, edits)
