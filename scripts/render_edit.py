@@ -1,9 +1,9 @@
 """The README's picture of an edit (issue 27): a motion and the same motion with one segment regenerated.
 
 "walk 3 s, wave 2 s, bow 3 s" is generated once; POST /edit's path (t2m.service.edit_runner.edit_with_engine)
-replaces the wave by "a person raises the left hand" and keeps the rest. docs/images/edit.png draws both as rows of the contact
-sheet (scripts/render_motions.py), each titled with what the raise-left probe measures on its middle segment, and
-the edited row with how many frames stayed bit-identical.
+replaces the wave by "a person raises the left hand" and keeps the rest. docs/images/edit.png draws both as rows of
+the contact sheet (scripts/render_motions.py), each titled with what the raise-left probe measures on its middle
+segment, and the edited row with how many frames stayed bit-identical.
 
     python scripts/render_edit.py                          # t2m/bundles/default, seed 7
     python scripts/render_edit.py --bundle DIR --seed 3 --out docs/images/edit.png
