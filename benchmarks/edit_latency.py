@@ -2,8 +2,10 @@
 
 A 3-sentence 8 s motion ("walk 3 s, wave 2 s, bow 3 s") is generated once; then, alternating, the whole request is
 generated again (what a client without /edit does to change the wave) and the wave alone is edited the way POST
-/edit does it (t2m.service.edit_runner.edit_with_engine): the handle read back and checked, the edited segment sampled
-alone with its own seed, every code decoded once (OnnxEngine.compose), the new handle written. Medians and p90 of
+/edit does it (t2m.service.edit_runner.edit_with_engine): for a token model the handle read back and checked, the
+edited segment sampled alone with its own seed (the masked family: inpainted with the kept codes around it), every
+code decoded once (OnnxEngine.compose), the new handle written; for a diffusion model the recipe replayed, the
+segment made again and its joins re-made. Medians and p90 of
 --repeats, the handle's size, and how many leading frames stayed bit-identical. Printed, never asserted.
 
     python benchmarks/edit_latency.py [--model t2m/bundles/default] [--model t2m/bundles/gpt] [--repeats 20]
@@ -81,11 +83,11 @@ def measure(model: Path, repeats: int, threads: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", type=Path, action="append",
-                        help="a bundle directory (repeatable); default: the embedded default and GPT models")
+                        help="a bundle directory (repeatable); default: the three embedded models")
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
     args = parser.parse_args()
-    models = args.model or [REPO / "t2m" / "bundles" / "default", REPO / "t2m" / "bundles" / "gpt"]
+    models = args.model or [REPO / "t2m" / "bundles" / name for name in ("default", "gpt", "masked")]
     for model in models:
         measure(model, args.repeats, args.threads)
 
