@@ -24,6 +24,7 @@ from t2m.service.edit_runner import edit_with_engine
 from t2m.service.engine.engine import OnnxEngine
 from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
 from t2m.service.handles import make_handle, read_handle
+from t2m.service.recipes import read_recipe
 from t2m.service.schemas import RegenerateEdit
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,7 +70,8 @@ def measure(model: Path, repeats: int, threads: int) -> None:
     assert isinstance(edited, Motion)
     same = np.all(edited.joints == motion.joints, axis=(1, 2))
     kept_frames = int(np.argmin(same)) if not same.all() else len(same)
-    read_ms = _times(lambda: read_handle(handle, engine.limits), repeats)
+    read = read_recipe if engine.limits.recipe else read_handle   # a diffusion model's handle is its recipe
+    read_ms = _times(lambda: read(handle, engine.limits), repeats)
     shown = model.resolve().relative_to(REPO) if model.resolve().is_relative_to(REPO) else model.name
     print(f"{engine.limits.name} {engine.limits.version} ({shown}): {len(motion.joints)} frames, "
           f"{sum(len(c) for c in motion.codes or [])} code steps, handle {len(handle)} characters "

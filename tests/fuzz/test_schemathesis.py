@@ -62,7 +62,10 @@ def live_url(tmp_path_factory):
     from t2m.export.families.gpt_random import build_random_bundle
 
     bundle = build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
-    with running_server(bundle, env={"T2M_API_KEY": API_KEY},
+    # a body limit above the schema's largest upload (120 s x 120 fps of joints): a schema-violating body reaches
+    # validation (a 422) instead of the body limit (a 413, tested in tests/service/test_http_behaviour.py and the
+    # uploads' tests)
+    with running_server(bundle, env={"T2M_API_KEY": API_KEY, "T2M_MAX_BODY_BYTES": str(64 * 2**20)},
                         log_dir=tmp_path_factory.mktemp("server")) as server:
         yield server.url
 
