@@ -44,7 +44,7 @@ python benchmarks/probes.py --bundle "$RUNS/dip_bundle" --seeds 5 --json-out "$R
 t2m eval --bundle "$RUNS/dip_bundle" --split val --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" \
   --guidance 1.5 2.5 4 6 8 --repeats 1 --mm-texts 10 --mm-repeats 3 --streams 30 --threads 2 --out "$RUNS/eval_dip_val.md"
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --bundle "$RUNS/dip_bundle" --guidance 7.5 \
-#   --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_dip.md"
+  --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_dip.md"
 
 # Smoke run, 2026-11-26 (this worktree; step 3's command with --steps 200 --warmup-steps 50 --val-every 200
 # --save-every 200 --threads 1, into runs/dip_smoke), on the shared 2-core machine at load average 5-12:
