@@ -2,8 +2,8 @@
 # A small DiP (the diffusion family's autoregressive model, issue 26 item 6) trained on Bandai-Namco, sized for about
 # 2 hours on this project's 2-core CPU machine. RUN 2026-11-26 with --steps 12000 (1 h 39 min, one thread, beside
 # other training) instead of 16000 to leave the session time for its evaluation; results, the guidance chosen on the
-# val split (7.5) and why it was not shipped: docs/diffusion-family.md, docs/measurements/dip_trained_2026-11-26.log. Run from the repository root in the training environment
-# (scripts/setup_env.sh .venv train,dev); each stage writes progress, train.log, log.csv and curves.png in its run
+# val split (7.5) and why it was not shipped: docs/diffusion-family.md, docs/measurements/dip_trained_2026-11-26.log.
+# Run from the repository root in the training environment (scripts/setup_env.sh .venv train,dev); each stage writes progress, train.log, log.csv and curves.png in its run
 # directory, and the training continues with the same command plus --resume (exactly: the same losses as unbroken).
 set -euo pipefail
 SHARED="${T2M_SHARED:-../shared}"
@@ -42,7 +42,8 @@ python benchmarks/probes.py --bundle "$RUNS/dip_bundle" --seeds 5 --json-out "$R
 # 6. Table 1 and the stream table (t2m/export/diffusion_evaluation.py): the guidance chosen on the val split first,
 #    then the test split at the chosen scale.
 t2m eval --bundle "$RUNS/dip_bundle" --split val --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" \
-  --guidance 1.5 2.5 4 6 8 --repeats 1 --mm-texts 10 --mm-repeats 3 --streams 30 --threads 2 --out "$RUNS/eval_dip_val.md"
+  --guidance 1.5 2.5 4 6 8 --repeats 1 --mm-texts 10 --mm-repeats 3 --streams 30 --threads 2 \
+  --out "$RUNS/eval_dip_val.md"
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --bundle "$RUNS/dip_bundle" --guidance 7.5 \
   --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_dip.md"
 
