@@ -64,12 +64,12 @@ class BundleDiffusionFamily:
 
     def _request(self, conds: Sequence[np.ndarray], frames: Sequence[int], guidance: float,
                  rng: np.random.Generator) -> Any:
-        from t2m.service.engine.diffusion_codes import DiffusionRequest
+        from t2m.service.engine.diffusion_codes import DiffusionRequest, pooled_token_states
 
         if self._served.settings.tokens:
             split = [split_token_states(np.asarray(cond, np.float32)) for cond in conds]
             texts, masks = [states for states, _ in split], [mask for _, mask in split]
-            pooled = np.stack([states.mean(axis=0) for states in texts])
+            pooled = pooled_token_states(texts)
         else:
             texts, masks = [np.asarray(cond, np.float32) for cond in conds], None
             pooled = np.stack(texts)
@@ -89,7 +89,8 @@ class BundleDiffusionFamily:
                        rng: np.random.Generator) -> list[list[np.ndarray]]:
         """One request per stream, its sentences the segments: the frames of each segment as served."""
         jobs = [self._request(list(cond), frames, guidance, rng) for cond, frames in zip(conds, tokens)]
-        return [[np.asarray(part, np.float32) for part in parts] for parts in self._served.sample(jobs, 0, None)]
+        made = self._served.sample(jobs, self.max_tokens, None)
+        return [[np.asarray(part, np.float32) for part in parts] for parts in made]
 
     def estimate_tokens(self, cond: np.ndarray, rng: np.random.Generator) -> list[int] | None:
         return None   # no length estimator: every segment needs a duration
