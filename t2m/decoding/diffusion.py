@@ -20,6 +20,10 @@ What the service adds for a request of several sentences (segments of exact fram
 - DiP (:class:`SegmentChain`): a segment covers its own calls, ⌈frames / pred_len⌉ of them, all with its text; its
   last call keeps only the frames the segment still needs (the rest is dropped) and the next call continues from
   the last `context_len` frames kept. No call straddles two sentences, and every segment has exactly its frames.
+  With `guidance_fade` F > 0 (not in the official code, which switches texts at full scale), the first call of every
+  sentence after the first is guided with a scale that rises linearly from 0 (the unconditional continuation of the
+  prefix) at its first frame to the request's at frame F: full-scale guidance pushes the new text's prediction away
+  from the prefix's motion and makes the join a near cut (docs/diffusion-family.md measures it).
 - MDM (:func:`join_windows`): each sentence is one whole motion; at each join a window is denoised again with
   known frames on its two sides (MDM's own in-betweening, edit.py's in_between mode) so the join is made anew.
 
@@ -38,8 +42,8 @@ import numpy as np
 
 __all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "Denoiser", "DiffusionChain", "DiffusionJob", "JoinWindow", "NoiseSource",
            "Schedule", "SegmentChain", "chain_calls", "cosine_alpha_bar", "cosine_betas", "cosine_schedule",
-           "denoise_step", "guided", "join_windows", "noise_from", "numbered_join_windows", "official_to_frames",
-           "run_jobs", "sample", "sample_chains", "sample_segment_chains", "start"]
+           "denoise_step", "faded_guidance", "guided", "join_windows", "noise_from", "numbered_join_windows",
+           "official_to_frames", "run_jobs", "sample", "sample_chains", "sample_segment_chains", "start"]
 
 MDM_GUIDANCE = 2.5   # generate.py's default guidance_param
 DIP_GUIDANCE = 7.5   # DiP.md's command line
@@ -126,9 +130,20 @@ def cosine_schedule(steps: int) -> Schedule:
     )
 
 
-def guided(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndarray:
-    """Classifier-free guidance on x0: uncond + s (cond − uncond), in float32 (s = 0: the unconditional output)."""
-    return uncond + np.float32(scale) * (cond - uncond)
+def guided(cond: np.ndarray, uncond: np.ndarray, scale: float | np.ndarray) -> np.ndarray:
+    """Classifier-free guidance on x0: uncond + s (cond − uncond), in float32 (s = 0: the unconditional output); s a
+    number or one per frame ([T, 1])."""
+    return uncond + np.asarray(scale, np.float32) * (cond - uncond)
+
+
+def faded_guidance(scale: float, frames: int, fade: int) -> np.ndarray:
+    """Per-frame scales [frames, 1] rising linearly from 0 (the unconditional prediction) at frame 0 to `scale` at
+    frame `fade` (and after). From 0 rather than 1: on the trained DiP's val split the joins' pelvis jump fell to
+    0.49 m/s from 0, 0.55 from 1 (0.95 unfaded; docs/diffusion-family.md)."""
+    if fade < 1:
+        raise ValueError(f"a fade needs at least one frame, got {fade}")
+    ramp = np.minimum(np.arange(frames, dtype=np.float64) / fade, 1.0)
+    return (scale * ramp).astype(np.float32)[:, None]
 
 
 # --------------------------------------------------------------------------------------------------------- noise
@@ -172,12 +187,22 @@ class DiffusionJob:
     rng: np.random.Generator
     guidance: float = 1.0
     text_mask: np.ndarray | None = None     # [L] bool, True = real token (token states only)
+    guidance_by_frame: np.ndarray | None = None   # [frames, 1]: one scale per frame instead of `guidance`
     prefix: np.ndarray | None = None
     known: np.ndarray | None = None
     known_mask: np.ndarray | None = None
     noise: NoiseSource | None = None        # None: the job's rng
     x: np.ndarray = field(init=False, repr=False)
     t: int = field(init=False, default=-1)  # the next step; -1 = done (or not started)
+
+    @property
+    def guided(self) -> bool:
+        """Whether the job needs a null row (any scale other than 1)."""
+        return self.guidance != 1.0 or self.guidance_by_frame is not None
+
+    @property
+    def scale(self) -> float | np.ndarray:
+        return self.guidance if self.guidance_by_frame is None else self.guidance_by_frame
 
     def draw(self, shape: tuple[int, ...]) -> np.ndarray:
         if self.noise is not None:
@@ -243,7 +268,7 @@ class _Rows(NamedTuple):
 def _denoiser_rows(jobs: Sequence[DiffusionJob], features: int) -> _Rows:
     """The inputs of one step's call: each job's conditional row, then a null row (zero text, same mask and
     prefix) for each guided job; x_t zero-padded to the longest job."""
-    rows = list(jobs) + [job for job in jobs if job.guidance != 1.0]
+    rows = list(jobs) + [job for job in jobs if job.guided]
     x = np.zeros((len(rows), max(job.frames for job in jobs), features), np.float32)
     for row, job in enumerate(rows):
         x[row, : job.frames] = job.x
@@ -262,8 +287,8 @@ def denoise_step(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[Diffusio
     null_row = len(jobs)
     for row, job in enumerate(jobs):
         prediction = x0[row, : job.frames]
-        if job.guidance != 1.0:
-            prediction = guided(prediction, x0[null_row, : job.frames], job.guidance)
+        if job.guided:
+            prediction = guided(prediction, x0[null_row, : job.frames], job.scale)
             null_row += 1
         _posterior_step(job, schedule, job.impose_known(prediction))
 
@@ -360,7 +385,8 @@ class SegmentChain:
     """One DiP request of several sentences: segment k's `frames[k]` frames come from ⌈frames[k] / pred_len⌉ calls
     with its own text (`texts[k]`, `text_masks[k]`); the last call's first frames are kept, as many as the segment
     still needs, and the next call starts after them. `prefix` [P, F]: the clean frames before the first call (the
-    bundle's standing pose), then the last P frames kept. `made[k]`: segment k's kept frames, call by call."""
+    bundle's standing pose), then the last P frames kept. `made[k]`: segment k's kept frames, call by call.
+    `guidance_fade`: frames over which the first call of each later segment fades its guidance in (0: off)."""
 
     texts: Sequence[np.ndarray]
     frames: Sequence[int]
@@ -370,6 +396,7 @@ class SegmentChain:
     text_masks: Sequence[np.ndarray] | None = None
     noise: NoiseSource | None = None
     cancelled: Callable[[], bool] | None = None
+    guidance_fade: int = 0
     made: list[list[np.ndarray]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -384,8 +411,11 @@ class SegmentChain:
                 for call in range(chain_calls(frames, pred_len))]
 
     def job(self, segment: int, pred_len: int) -> DiffusionJob:
+        fades = self.guidance_fade > 0 and segment > 0 and not self.made[segment]
         return DiffusionJob(text=self.texts[segment], frames=pred_len, rng=self.rng, guidance=self.guidance,
                             text_mask=None if self.text_masks is None else self.text_masks[segment],
+                            guidance_by_frame=(faded_guidance(self.guidance, pred_len, self.guidance_fade) if fades
+                                               else None),
                             prefix=self.prefix, noise=self.noise)
 
     def keep(self, segment: int, new: np.ndarray, kept: int) -> None:
