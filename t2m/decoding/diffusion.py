@@ -20,10 +20,11 @@ What the service adds for a request of several sentences (segments of exact fram
 - DiP (:class:`SegmentChain`): a segment covers its own calls, ⌈frames / pred_len⌉ of them, all with its text; its
   last call keeps only the frames the segment still needs (the rest is dropped) and the next call continues from
   the last `context_len` frames kept. No call straddles two sentences, and every segment has exactly its frames.
-  With `guidance_fade` F > 0 (not in the official code, which switches texts at full scale), the first call of every
-  sentence after the first is guided with a scale that rises linearly from 0 (the unconditional continuation of the
-  prefix) at its first frame to the request's at frame F: full-scale guidance pushes the new text's prediction away
-  from the prefix's motion and makes the join a near cut (docs/diffusion-family.md measures it).
+  With `crossfade` F > 0 (not in the official code, which switches texts from one call to the next), the first call
+  of every sentence after the first cross-fades the condition: its conditional prediction is w (new text) + (1 - w)
+  (previous text), w rising linearly from 0 at its first frame to 1 at frame F, then guided as usual. Switched at
+  full guidance, the new text's prediction is pushed away from the prefix's motion and the join is a near cut
+  (docs/diffusion-family.md measures both).
 - MDM (:func:`join_windows`): each sentence is one whole motion; at each join a window is denoised again with
   known frames on its two sides (MDM's own in-betweening, edit.py's in_between mode) so the join is made anew.
 
@@ -42,7 +43,7 @@ import numpy as np
 
 __all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "Denoiser", "DiffusionChain", "DiffusionJob", "JoinWindow", "NoiseSource",
            "Schedule", "SegmentChain", "chain_calls", "cosine_alpha_bar", "cosine_betas", "cosine_schedule",
-           "denoise_step", "faded_guidance", "guided", "join_windows", "noise_from", "numbered_join_windows",
+           "crossfade_weights", "denoise_step", "guided", "join_windows", "noise_from", "numbered_join_windows",
            "official_to_frames", "run_jobs", "sample", "sample_chains", "sample_segment_chains", "start"]
 
 MDM_GUIDANCE = 2.5   # generate.py's default guidance_param
@@ -130,20 +131,17 @@ def cosine_schedule(steps: int) -> Schedule:
     )
 
 
-def guided(cond: np.ndarray, uncond: np.ndarray, scale: float | np.ndarray) -> np.ndarray:
-    """Classifier-free guidance on x0: uncond + s (cond − uncond), in float32 (s = 0: the unconditional output); s a
-    number or one per frame ([T, 1])."""
-    return uncond + np.asarray(scale, np.float32) * (cond - uncond)
+def guided(cond: np.ndarray, uncond: np.ndarray, scale: float) -> np.ndarray:
+    """Classifier-free guidance on x0: uncond + s (cond − uncond), in float32 (s = 0: the unconditional output)."""
+    return uncond + np.float32(scale) * (cond - uncond)
 
 
-def faded_guidance(scale: float, frames: int, fade: int) -> np.ndarray:
-    """Per-frame scales [frames, 1] rising linearly from 0 (the unconditional prediction) at frame 0 to `scale` at
-    frame `fade` (and after). From 0 rather than 1: on the trained DiP's val split the joins' pelvis jump fell to
-    0.49 m/s from 0, 0.55 from 1 (0.95 unfaded; docs/diffusion-family.md)."""
+def crossfade_weights(frames: int, fade: int) -> np.ndarray:
+    """The new text's weight per frame [frames, 1]: 0 at frame 0 (the previous text's prediction), rising linearly
+    to 1 at frame `fade` and after."""
     if fade < 1:
-        raise ValueError(f"a fade needs at least one frame, got {fade}")
-    ramp = np.minimum(np.arange(frames, dtype=np.float64) / fade, 1.0)
-    return (scale * ramp).astype(np.float32)[:, None]
+        raise ValueError(f"a cross-fade needs at least one frame, got {fade}")
+    return np.minimum(np.arange(frames, dtype=np.float64) / fade, 1.0).astype(np.float32)[:, None]
 
 
 # --------------------------------------------------------------------------------------------------------- noise
@@ -187,7 +185,9 @@ class DiffusionJob:
     rng: np.random.Generator
     guidance: float = 1.0
     text_mask: np.ndarray | None = None     # [L] bool, True = real token (token states only)
-    guidance_by_frame: np.ndarray | None = None   # [frames, 1]: one scale per frame instead of `guidance`
+    # a cross-fade from the previous sentence: its (text, text_mask), and this text's weight per frame [frames, 1]
+    fade_from: tuple[np.ndarray, np.ndarray | None] | None = None
+    fade_weight: np.ndarray | None = None
     prefix: np.ndarray | None = None
     known: np.ndarray | None = None
     known_mask: np.ndarray | None = None
@@ -198,11 +198,7 @@ class DiffusionJob:
     @property
     def guided(self) -> bool:
         """Whether the job needs a null row (any scale other than 1)."""
-        return self.guidance != 1.0 or self.guidance_by_frame is not None
-
-    @property
-    def scale(self) -> float | np.ndarray:
-        return self.guidance if self.guidance_by_frame is None else self.guidance_by_frame
+        return self.guidance != 1.0
 
     def draw(self, shape: tuple[int, ...]) -> np.ndarray:
         if self.noise is not None:
@@ -230,19 +226,19 @@ def start(job: DiffusionJob, schedule: Schedule, features: int) -> None:
     job.t = schedule.steps - 1
 
 
-def _batch_text(jobs: Sequence[DiffusionJob]) -> tuple[np.ndarray, np.ndarray | None]:
-    """Texts of the jobs stacked; token states zero-padded to the longest, with their masks."""
-    if any((job.text_mask is None) != (jobs[0].text_mask is None) for job in jobs):
+def _batch_text(texts: Sequence[tuple[np.ndarray, np.ndarray | None]]) -> tuple[np.ndarray, np.ndarray | None]:
+    """Texts (text, mask) stacked; token states zero-padded to the longest, with their masks."""
+    if any((mask is None) != (texts[0][1] is None) for _, mask in texts):
         raise ValueError("jobs in one batch must all give token states with masks, or all pooled features")
-    if jobs[0].text_mask is None:
-        return np.stack([np.asarray(job.text, np.float32) for job in jobs]), None
-    tokens = max(len(job.text) for job in jobs)
-    text = np.zeros((len(jobs), tokens, jobs[0].text.shape[-1]), np.float32)
-    mask = np.zeros((len(jobs), tokens), bool)
-    for row, job in enumerate(jobs):
-        text[row, : len(job.text)] = job.text
-        mask[row, : len(job.text)] = np.asarray(job.text_mask, bool)
-    return text, mask
+    if texts[0][1] is None:
+        return np.stack([np.asarray(text, np.float32) for text, _ in texts]), None
+    tokens = max(len(text) for text, _ in texts)
+    stacked = np.zeros((len(texts), tokens, texts[0][0].shape[-1]), np.float32)
+    masks = np.zeros((len(texts), tokens), bool)
+    for row, (text, mask) in enumerate(texts):
+        stacked[row, : len(text)] = text
+        masks[row, : len(text)] = np.asarray(mask, bool)
+    return stacked, masks
 
 
 def _batch_prefix(jobs: Sequence[DiffusionJob]) -> np.ndarray | None:
@@ -267,13 +263,17 @@ class _Rows(NamedTuple):
 
 def _denoiser_rows(jobs: Sequence[DiffusionJob], features: int) -> _Rows:
     """The inputs of one step's call: each job's conditional row, then a null row (zero text, same mask and
-    prefix) for each guided job; x_t zero-padded to the longest job."""
-    rows = list(jobs) + [job for job in jobs if job.guided]
+    prefix) for each guided job, then a row of the previous sentence's text for each cross-fading job; x_t
+    zero-padded to the longest job."""
+    nulls = [job for job in jobs if job.guided]
+    fading = [job for job in jobs if job.fade_from is not None]
+    rows = [*jobs, *nulls, *fading]
     x = np.zeros((len(rows), max(job.frames for job in jobs), features), np.float32)
     for row, job in enumerate(rows):
         x[row, : job.frames] = job.x
-    text, mask = _batch_text(rows)
-    text[len(jobs):] = 0.0
+    text, mask = _batch_text([(job.text, job.text_mask) for job in [*jobs, *nulls]]
+                             + [job.fade_from for job in fading if job.fade_from is not None])
+    text[len(jobs):len(jobs) + len(nulls)] = 0.0
     return _Rows(x, np.array([job.t for job in rows], np.int64), text, mask,
                  np.array([job.frames for job in rows], np.int64), _batch_prefix(rows))
 
@@ -285,10 +285,14 @@ def denoise_step(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[Diffusio
         return
     x0 = np.asarray(denoiser(*_denoiser_rows(jobs, jobs[0].x.shape[1])), np.float32)
     null_row = len(jobs)
+    fade_row = null_row + sum(job.guided for job in jobs)
     for row, job in enumerate(jobs):
         prediction = x0[row, : job.frames]
+        if job.fade_from is not None and job.fade_weight is not None:
+            prediction = job.fade_weight * prediction + (np.float32(1.0) - job.fade_weight) * x0[fade_row, : job.frames]
+            fade_row += 1
         if job.guided:
-            prediction = guided(prediction, x0[null_row, : job.frames], job.scale)
+            prediction = guided(prediction, x0[null_row, : job.frames], job.guidance)
             null_row += 1
         _posterior_step(job, schedule, job.impose_known(prediction))
 
@@ -386,7 +390,8 @@ class SegmentChain:
     with its own text (`texts[k]`, `text_masks[k]`); the last call's first frames are kept, as many as the segment
     still needs, and the next call starts after them. `prefix` [P, F]: the clean frames before the first call (the
     bundle's standing pose), then the last P frames kept. `made[k]`: segment k's kept frames, call by call.
-    `guidance_fade`: frames over which the first call of each later segment fades its guidance in (0: off)."""
+    `crossfade`: frames over which the first call of each later segment cross-fades from the previous segment's
+    text to its own (0: off, the official switch)."""
 
     texts: Sequence[np.ndarray]
     frames: Sequence[int]
@@ -396,7 +401,7 @@ class SegmentChain:
     text_masks: Sequence[np.ndarray] | None = None
     noise: NoiseSource | None = None
     cancelled: Callable[[], bool] | None = None
-    guidance_fade: int = 0
+    crossfade: int = 0
     made: list[list[np.ndarray]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -411,12 +416,14 @@ class SegmentChain:
                 for call in range(chain_calls(frames, pred_len))]
 
     def job(self, segment: int, pred_len: int) -> DiffusionJob:
-        fades = self.guidance_fade > 0 and segment > 0 and not self.made[segment]
-        return DiffusionJob(text=self.texts[segment], frames=pred_len, rng=self.rng, guidance=self.guidance,
-                            text_mask=None if self.text_masks is None else self.text_masks[segment],
-                            guidance_by_frame=(faded_guidance(self.guidance, pred_len, self.guidance_fade) if fades
-                                               else None),
-                            prefix=self.prefix, noise=self.noise)
+        mask = None if self.text_masks is None else self.text_masks[segment]
+        job = DiffusionJob(text=self.texts[segment], frames=pred_len, rng=self.rng, guidance=self.guidance,
+                           text_mask=mask, prefix=self.prefix, noise=self.noise)
+        if self.crossfade > 0 and segment > 0 and not self.made[segment]:
+            job.fade_from = (self.texts[segment - 1],
+                             None if self.text_masks is None else self.text_masks[segment - 1])
+            job.fade_weight = crossfade_weights(pred_len, self.crossfade)
+        return job
 
     def keep(self, segment: int, new: np.ndarray, kept: int) -> None:
         self.made[segment].append(new[:kept])

@@ -46,7 +46,7 @@ DIFFUSION_FIELDS: dict[str, FieldRule] = {
 }
 OPTIONAL_FIELDS: dict[str, FieldRule] = {
     "diffusion.prefix": (is_str, "null or the name of the prefix file, such as 'prefix.npy'"),
-    "diffusion.guidance_fade": NON_NEGATIVE,
+    "diffusion.crossfade": NON_NEGATIVE,
     "quantization.denoiser": QUANTIZATION,
 }
 # POST /edit's kinds both MDM and DiP make (service/diffusion_edits.py)
@@ -70,7 +70,7 @@ class DiffusionSettings:
     join_frames: int
     join_context: int
     prefix: str | None = None
-    guidance_fade: int = 0              # DiP: frames a later sentence's first call fades its guidance in over
+    crossfade: int = 0                  # DiP: frames a later sentence's first call cross-fades its text over
     length_conditioning: bool = False   # lengths are the motion's own (x_t's frames), not a token-graph input
 
     @property
@@ -133,9 +133,9 @@ class DiffusionFamily(ModelFamily):
                               "('diffusion.pred_len' 0)")
         if prefix is not None and prefix not in manifest["files"]:
             raise BundleError(f"{MANIFEST_NAME}: field 'files' does not list the prefix {prefix!r}")
-        fade = block.get("guidance_fade", 0)
+        fade = block.get("crossfade", 0)
         if fade > block["pred_len"]:
-            raise BundleError(f"{MANIFEST_NAME}: field 'diffusion.guidance_fade' ({fade}) must be at most "
+            raise BundleError(f"{MANIFEST_NAME}: field 'diffusion.crossfade' ({fade}) must be at most "
                               f"'diffusion.pred_len' ({block['pred_len']}): it fades in within one call (0 for "
                               "whole motions)")
 
@@ -177,11 +177,11 @@ class DiffusionFamily(ModelFamily):
             unconditional_branch=block["unconditional_branch"], text_conditioning=block["text_conditioning"],
             mask_frames=block["mask_frames"], context_len=block["context_len"], pred_len=block["pred_len"],
             join_frames=block["join_frames"], join_context=block["join_context"], prefix=block.get("prefix"),
-            guidance_fade=block.get("guidance_fade", 0))
+            crossfade=block.get("crossfade", 0))
 
     def describe(self, manifest: Any, guidance: float) -> str:
         s = manifest.settings
-        fade = f", guidance faded in over {s.guidance_fade} frames at joins" if s.guidance_fade else ""
+        fade = f", texts cross-faded over {s.crossfade} frames at joins" if s.crossfade else ""
         how = (f"{s.pred_len}-frame calls after {s.context_len} frames{fade}" if s.chained
                else f"whole motions, joins in-betweened over {s.join_frames} + {s.join_context} frames a side")
         return f"diffusion: {s.arch}, {s.steps} steps, {s.text_conditioning} text, {how}, guidance {guidance:g}"
@@ -199,20 +199,20 @@ class DiffusionFamily(ModelFamily):
                                 "models come from `t2m import mdm|dip`")
         group.add_argument("--diffusion-seed", type=int, default=None, metavar="N",
                            help="family diffusion: seed of the random weights (default 0)")
-        group.add_argument("--guidance-fade", type=int, default=0, metavar="FRAMES",
+        group.add_argument("--crossfade", type=int, default=0, metavar="FRAMES",
                            help="family diffusion, a DiP run: the first call of each sentence after the first "
-                                "fades its guidance in from 0 over FRAMES frames (default 0: the official switch "
-                                "at full scale, whose joins are near cuts)")
+                                "cross-fades from the previous sentence's text to its own over FRAMES frames "
+                                "(default 0: the official switch, whose joins are near cuts)")
 
     def check_export_arguments(self, args: argparse.Namespace) -> None:
         if (args.diffusion_random is None) == (args.diffusion_run is None):
             raise ValueError("--family diffusion exports a trained run (--diffusion-run RUN, from `t2m train dip`) "
                              "or a tiny random-weight bundle (--diffusion-random mdm|dip), one of the two; import a "
                              "released MDM or DiP with `t2m import mdm|dip`")
-        if args.guidance_fade and args.diffusion_run is None:
-            raise ValueError(f"--guidance-fade {args.guidance_fade}: for a trained DiP run (--diffusion-run RUN)")
-        if args.guidance_fade < 0:
-            raise ValueError(f"--guidance-fade must be 0 or more frames, got {args.guidance_fade}")
+        if args.crossfade and args.diffusion_run is None:
+            raise ValueError(f"--crossfade {args.crossfade}: for a trained DiP run (--diffusion-run RUN)")
+        if args.crossfade < 0:
+            raise ValueError(f"--crossfade must be 0 or more frames, got {args.crossfade}")
         if args.diffusion_random is not None and args.int8 != "none":
             raise ValueError(f"--int8 {args.int8}: quantises a trained run's text graph (--diffusion-run RUN); the "
                              "random bundles keep float32 graphs")
@@ -224,7 +224,7 @@ class DiffusionFamily(ModelFamily):
             return export_dip_from_run(args.diffusion_run, args.output, name=args.name, version=args.version,
                                        default_guidance=args.guidance, model_card=args.model_card,
                                        data_summary=args.data_summary, check_parity=not args.skip_parity,
-                                       int8_text="text" in int8, guidance_fade=args.guidance_fade)
+                                       int8_text="text" in int8, crossfade=args.crossfade)
         from t2m.export.families.diffusion_random import build_random_diffusion_bundle
 
         manifest = build_random_diffusion_bundle(

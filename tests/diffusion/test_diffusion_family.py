@@ -15,7 +15,7 @@ from t2m.bundle import BundleError, read_manifest
 from t2m.decoding.diffusion import (
     SegmentChain,
     cosine_schedule,
-    faded_guidance,
+    crossfade_weights,
     join_windows,
     sample_segment_chains,
 )
@@ -61,8 +61,8 @@ def test_the_bundles_declare_the_family_block_and_graphs(bundles):
     (lambda m: m["diffusion"].update(steps=1), "field 'diffusion.steps' must be an integer >= 2"),
     (lambda m: m["diffusion"].update(text_conditioning="words"), "field 'diffusion.text_conditioning' must be"),
     (lambda m: m["diffusion"].pop("join_frames"), "missing field 'diffusion.join_frames'"),
-    (lambda m: m["diffusion"].update(guidance_fade=-1), "field 'diffusion.guidance_fade' must be an integer >= 0"),
-    (lambda m: m["diffusion"].update(guidance_fade=99), "'diffusion.guidance_fade' (99) must be at most"),
+    (lambda m: m["diffusion"].update(crossfade=-1), "field 'diffusion.crossfade' must be an integer >= 0"),
+    (lambda m: m["diffusion"].update(crossfade=99), "'diffusion.crossfade' (99) must be at most"),
 ])
 def test_a_bad_manifest_is_refused_naming_the_field(bundles, tmp_path, edit, message):
     copy = tmp_path / "bundle"
@@ -108,9 +108,9 @@ def test_the_export_cli_writes_a_random_bundle_and_refuses_without_one(tmp_path,
     assert main(["export", "--family", "diffusion", "--diffusion-random", "dip", "--int8", "denoiser",
                  "-o", str(tmp_path / "q")]) != 0
     assert "--int8 denoiser: give none, all, or some of text" in capsys.readouterr().err
-    assert main(["export", "--family", "diffusion", "--diffusion-random", "dip", "--guidance-fade", "10",
+    assert main(["export", "--family", "diffusion", "--diffusion-random", "dip", "--crossfade", "10",
                  "-o", str(tmp_path / "q")]) != 0
-    assert "--guidance-fade 10: for a trained DiP run" in capsys.readouterr().err
+    assert "--crossfade 10: for a trained DiP run" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------ sentences
@@ -148,35 +148,42 @@ def test_a_segment_covers_its_calls_and_the_next_continues_from_the_frames_kept(
     np.testing.assert_array_equal(firsts[5][0][0], motion[11:14])
 
 
-class GuidanceRecorder:
-    """A denoiser whose conditional rows predict 1 and null rows (zero text) 0, so the guided x0 of each frame is
-    its scale; records the guided x0 of the first row's call by call through a known-free job."""
+class TextValueDenoiser:
+    """A denoiser whose x0 is, on every frame, the mean of its row's text (0 for the null text), whatever x_t is; so
+    a guided, cross-faded x0 is known in closed form, and at t = 0 the posterior mean is x0 itself."""
 
     def __call__(self, x_t, t, text, text_mask, length, prefix):
-        real = (np.abs(text).sum(axis=(1, 2)) > 0).astype(np.float32)
-        return np.broadcast_to(real[:, None, None], x_t.shape).copy()
+        value = (text * text_mask[..., None]).sum(axis=(1, 2)) / (text_mask.sum(axis=1) * text.shape[-1])
+        return np.broadcast_to(value[:, None, None], x_t.shape).astype(np.float32)
 
 
-def test_faded_guidance_rises_from_zero_to_the_scale_within_the_fade():
-    scales = faded_guidance(7.5, 6, 4)[:, 0]
-    np.testing.assert_allclose(scales, [0.0, 1.875, 3.75, 5.625, 7.5, 7.5])
+def test_crossfade_weights_rise_from_zero_to_one_within_the_fade():
+    np.testing.assert_allclose(crossfade_weights(6, 4)[:, 0], [0.0, 0.25, 0.5, 0.75, 1.0, 1.0])
     with pytest.raises(ValueError, match="at least one frame"):
-        faded_guidance(7.5, 6, 0)
+        crossfade_weights(6, 0)
 
 
 @pytest.mark.parametrize("fade", [0, 3])
-def test_only_a_later_sentences_first_call_fades_its_guidance_in(fade):
-    """x0 = uncond + s (cond - uncond) = s per frame here; at t = 0 the posterior mean is x0 exactly, so the frames
-    kept are the scales each call used."""
-    texts = [np.ones((2, 4), np.float32), 2 * np.ones((2, 4), np.float32)]
+def test_only_a_later_sentences_first_call_crossfades_from_the_previous_text(fade):
+    """Texts of value 1 and 2, guidance 5: x0 = 0 + 5 (w 2 + (1 - w) 1 - 0) on each frame of the faded call, 5 x 2
+    after it, 5 x 1 all through the first sentence; the batch carries one more row (the previous text) only then."""
+    texts = [np.ones((2, 4), np.float32), 2 * np.ones((3, 4), np.float32)]
+    rows: list[int] = []
+    denoiser = TextValueDenoiser()
+
+    def counting(*inputs):
+        rows.append(len(inputs[0]))
+        return denoiser(*inputs)
+
     chain = SegmentChain(texts=texts, frames=[4, 6], prefix=np.zeros((2, 3), np.float32),
-                         rng=np.random.default_rng(0), guidance=5.0, text_masks=[np.ones(2, bool)] * 2,
-                         guidance_fade=fade)
-    (segments,) = sample_segment_chains(GuidanceRecorder(), cosine_schedule(2), [chain], 4)
+                         rng=np.random.default_rng(0), guidance=5.0,
+                         text_masks=[np.ones(2, bool), np.ones(3, bool)], crossfade=fade)
+    (segments,) = sample_segment_chains(counting, cosine_schedule(2), [chain], 4)
     first, second = segments
-    np.testing.assert_allclose(first[:, 0], 5.0)                 # the first sentence: full scale from its start
-    expected = [0.0, 5 / 3, 10 / 3, 5.0, 5.0, 5.0] if fade else [5.0] * 6   # calls of 4 + 2 kept frames
-    np.testing.assert_allclose(second[:, 0], expected, rtol=1e-6)
+    np.testing.assert_allclose(first, 5.0)
+    weights = np.array([0, 1 / 3, 2 / 3, 1, 1, 1]) if fade else np.ones(6)   # calls of 4 + 2 kept frames
+    np.testing.assert_allclose(second[:, 0], 5 * (2 * weights + (1 - weights)), rtol=1e-6)
+    assert rows == [2, 2, 3 if fade else 2, 3 if fade else 2, 2, 2]   # 2 steps per call, 3 calls
 
 
 def test_join_windows_stay_inside_their_segments_and_never_overlap():

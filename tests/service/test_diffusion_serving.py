@@ -162,3 +162,26 @@ def test_dip_streams_each_call_as_it_is_made(engines):
     mdm: list[np.ndarray] = []
     engines["mdm"].generate(request(on_frames=mdm.append))
     assert mdm == []
+
+
+def test_a_dip_crossfade_changes_only_the_later_sentences_and_stays_deterministic_under_batching(engines):
+    """diffusion.crossfade: the same seed with and without it: the first sentence's frames are equal (its calls do
+    not fade), the second's first call moves; a cross-faded request is the same alone and batched with another."""
+    engine = engines["dip"]
+    codes = engine.codes
+
+    def made(settings, requests) -> list[np.ndarray]:
+        original = codes.settings
+        codes.settings = settings
+        try:
+            jobs = [codes.job(one, engine.text, engine.limits) for one in requests]
+            return [np.concatenate(segments) for segments in codes.sample(jobs, 60, None)]
+        finally:
+            codes.settings = original
+
+    faded = dataclasses.replace(codes.settings, crossfade=8)
+    (plain,), (crossed,) = made(codes.settings, [request()]), made(faded, [request()])
+    np.testing.assert_array_equal(crossed[:20], plain[:20])
+    assert np.abs(crossed[20:36] - plain[20:36]).max() > 1e-3
+    together = made(faded, [request(), request(4, guidance=1.0)])
+    assert np.abs(together[0] - crossed).max() < 1e-5

@@ -51,7 +51,7 @@ def export_diffusion_bundle(
     out_dir: str | Path, *, model: MDM, mean: np.ndarray, std: np.ndarray, text_source: TextSource, name: str,
     version: str, training_data: Mapping[str, str], license: str, default_guidance: float,
     unconditional_branch: bool = True, max_frames: int = MDM_MAX_FRAMES, join_frames: int = JOIN_FRAMES,
-    join_context: int = JOIN_CONTEXT, prefix: np.ndarray | None = None, guidance_fade: int = 0,
+    join_context: int = JOIN_CONTEXT, prefix: np.ndarray | None = None, crossfade: int = 0,
     description: str = "",
     notes: str = "", checks: Callable[[Path], str] | None = None,
     int8_reports: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -59,7 +59,8 @@ def export_diffusion_bundle(
     DiP model has no limit of its own: how long one sentence may run); `prefix` [context_len, F] normalised frames
     before DiP's first call (default: standing_prefix of mean/std); `join_frames` / `join_context`: MDM's
     in-between window at each join of sentences (0 join frames: the sentences are put end to end as made);
-    `guidance_fade`: DiP's later sentences fade their guidance in over that many frames (0: the official switch);
+    `crossfade`: DiP's later sentences cross-fade from the previous text over that many frames (0: the official
+    switch);
     `checks(out_dir)`, called once the graphs are written (an importer's parity against its modules), returns
     Markdown the card adds after `notes`; `int8_reports` (a dict): the text graph is quantised to int8 (its
     price, cosine to the float32 states and speed, is put in it under "text_encoder" and on the card)."""
@@ -101,17 +102,17 @@ def export_diffusion_bundle(
              "context_len": c.context_len if chained else 0, "pred_len": c.pred_len if chained else 0,
              "join_frames": 0 if chained else join_frames, "join_context": 0 if chained else join_context,
              "prefix": PREFIX_FILE if chained else None}
-    if chained and guidance_fade:
-        if not 0 < guidance_fade <= c.pred_len:
-            raise ValueError(f"guidance_fade must be within 1..{c.pred_len} (one call), got {guidance_fade}")
-        block["guidance_fade"] = int(guidance_fade)
+    if chained and crossfade:
+        if not 0 < crossfade <= c.pred_len:
+            raise ValueError(f"crossfade must be within 1..{c.pred_len} (one call), got {crossfade}")
+        block["crossfade"] = int(crossfade)
     manifest: dict[str, Any] = {
         "family": "diffusion", "name": name, "version": version, **motion_fields(c.features, 1, max_frames),
         "codebook_size": 1, "residual_layers": 1, "text_encoder": text, "diffusion": block,
         "training_data": dict(training_data), "license": license,
         "quantization": {"text_encoder": quantized_text, "denoiser": None}}
-    fade = (f"; a later sentence's first call fades its guidance in from 0 over {guidance_fade} frames"
-            if chained and guidance_fade else "")
+    fade = (f"; a later sentence's first call cross-fades from the previous text over {crossfade} frames"
+            if chained and crossfade else "")
     how = (f"{c.pred_len}-frame calls after {c.context_len} clean frames, each sentence its own calls; the first "
            f"call continues a standing pose (prefix.npy){fade}" if chained else
            f"each sentence a whole motion of at most {max_frames} frames; joins re-made by in-betweening "
@@ -167,10 +168,10 @@ def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | Non
                         default_guidance: float | None = None, model_card: str | Path | None = None,
                         data_summary: str | Path | None = None, text_source: TextSource | None = None,
                         check_parity: bool = True, int8_text: bool = False,
-                        guidance_fade: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
+                        crossfade: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
     """A `t2m train dip` run -> a DiP bundle: its EMA weights (model_avg), the MiniLM token-state text graph it was
     trained on (`text_source` replaces it in tests; int8 with `int8_text`), the run's mean/std, the standing prefix;
-    returns (manifest, checks). `guidance_fade`: see export_diffusion_bundle."""
+    returns (manifest, checks). `crossfade`: see export_diffusion_bundle."""
     from t2m.export.kit.runs import run_training_data
     from t2m.export.kit.text_sources import token_states_text_source
     from t2m.model.networks.diffusion import AveragedMDM
@@ -206,7 +207,7 @@ def export_dip_from_run(run: str | Path, out_dir: str | Path, *, name: str | Non
         name=name or f"t2m-{training_data['name']}-dip-minilm", version=version, training_data=training_data,
         license=training_data["license"], default_guidance=guidance,
         unconditional_branch=float(training.get("cond_mask_prob", 0.0)) > 0, max_frames=TRAINED_MAX_FRAMES,
-        guidance_fade=guidance_fade,
+        crossfade=crossfade,
         description=f"A small DiP trained here ({c.layers} decoder layers, latent {c.latent_dim}) on "
                     f"{training_data['name']}: {c.pred_len}-frame calls after {c.context_len} frames, "
                     f"{c.diffusion_steps} DDPM steps, MiniLM token states.", notes=notes, int8_reports=int8)

@@ -254,7 +254,7 @@ class DiffusionCodes:
         assert self.prefix is not None
         chains = [SegmentChain(texts=job.texts, frames=job.frames, prefix=self.prefix.copy(), rng=job.rng,
                                guidance=job.guidance, text_masks=job.text_masks, cancelled=job.cancelled,
-                               noise=job.noise, guidance_fade=self.settings.guidance_fade)
+                               noise=job.noise, crossfade=self.settings.crossfade)
                   for job in jobs]
 
         def after_call(index: int, chain: SegmentChain) -> None:
