@@ -33,9 +33,11 @@ t2m train dip --data "$DATA" --out "$RUNS/dip" --steps 16000 --batch-size 64 --l
 # 4. The bundle: the EMA weights, the MiniLM token-state text graph quantised to int8 (--int8 text: 90 -> 23 MB; its
 #    Table 1 equals the float32 graph's within the intervals), the run's Mean/Std, the standing prefix; guidance 7.5
 #    (chosen on the val split by step 6's first command, not on the probes). Its caption index (unknown sentences):
-#    t2m index-captions pools each caption's token states as its requests do.
-t2m export --family diffusion --diffusion-run "$RUNS/dip" --guidance 7.5 --int8 text --name t2m-bandai-dip-minilm \
-  --version 0.1.0 -o "$RUNS/dip_bundle"
+#    t2m index-captions pools each caption's token states as its requests do. 0.2.0: a later sentence's first call
+#    cross-fades from the previous text over 40 frames (--crossfade 40, chosen on the val split by step 6's last
+#    command; the joins' pelvis jump 0.95 -> 0.30 m/s there).
+t2m export --family diffusion --diffusion-run "$RUNS/dip" --guidance 7.5 --int8 text --crossfade 40 \
+  --name t2m-bandai-dip-minilm --version 0.2.0 -o "$RUNS/dip_bundle"
 
 # 5. The probes (the engine's loop, any family) beside the other embedded models.
 python benchmarks/probes.py --bundle "$RUNS/dip_bundle" --seeds 5 --json-out "$RUNS/probes_dip.json"
@@ -47,6 +49,16 @@ t2m eval --bundle "$RUNS/dip_bundle" --split val --data "$DATA" --evaluator "${E
   --out "$RUNS/eval_dip_val.md"
 t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --bundle "$RUNS/dip_bundle" --guidance 7.5 \
   --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_dip.md"
+# the cross-fade, chosen on val (150 clips, 50 streams; each a copy of the 0.1.0 bundle with "crossfade" F in its
+# manifest's diffusion block): F = 0 (off), 20, 40, compared by the stream table's pelvis jump and transition FID
+for fade in 0 20 40; do
+  mkdir -p "$RUNS/dip_xfade$fade" && cp "$RUNS"/dip_bundle/* "$RUNS/dip_xfade$fade"/
+  python -c "import json, sys; p = sys.argv[1] + '/manifest.json'; m = json.load(open(p)); \
+m['diffusion']['crossfade'] = int(sys.argv[2]); json.dump(m, open(p, 'w'), indent=2)" "$RUNS/dip_xfade$fade" "$fade"
+  t2m eval --bundle "$RUNS/dip_xfade$fade" --split val --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" \
+    --guidance 7.5 --repeats 1 --limit 150 --mm-texts 5 --mm-repeats 2 --streams 50 --threads 1 \
+    --out "$RUNS/eval_xfade_$fade.md"
+done
 
 # Smoke run, 2026-11-26 (this worktree; step 3's command with --steps 200 --warmup-steps 50 --val-every 200
 # --save-every 200 --threads 1, into runs/dip_smoke), on the shared 2-core machine at load average 5-12:
