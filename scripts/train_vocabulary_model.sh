@@ -49,3 +49,19 @@ for bundle in t2m/bundles/default "$RUNS/bundle"; do
   python benchmarks/probes.py --bundle "$bundle" --probes jump,invert,get_up --seeds 5 --no-stream \
     --json-out "$RUNS/action_probes_$name.json"     # the CMU actions (0/90 for every embedded model before)
 done
+
+# 5. The CMU test trials (42 items: 21 clips and their mirrors): the Bandai evaluator never saw CMU's actions or
+#    sentences, so an evaluator trained the same way on the merged data (runs/both/evaluator, 600 steps) measures
+#    them; its numbers compare the two models with each other on CMU, not with the Bandai tables. The runs' rows
+#    (--vq/--hifigpt) add the VQ reconstruction row (MPJPE) on each test split: CMU trials against Bandai clips.
+[ -d "$RUNS/evaluator" ] || t2m train evaluator --data "$DATA" --out "$RUNS/evaluator" --text-cache "$TEXT" \
+  --steps 600 --threads 1
+for data in data/cmu data/bandai; do
+  t2m eval --vq "$RUNS/rvq_causal" --hifigpt "$RUNS/hifigpt" --data "$data" --evaluator "$RUNS/evaluator" \
+    --guidance 3 --repeats 3 --mm-texts 10 --mm-repeats 5 --no-multi-sentence --threads 2 \
+    --out "$RUNS/eval_runs_$(basename "$data").md"
+done
+for bundle in t2m/bundles/default "$RUNS/bundle"; do
+  t2m eval --bundle "$bundle" --data data/cmu --evaluator "$RUNS/evaluator" --guidance 3 --repeats 3 \
+    --mm-texts 10 --mm-repeats 5 --streams 14 --threads 2 --out "$RUNS/eval_cmu_$(basename "$bundle").md"
+done
