@@ -40,7 +40,10 @@ t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --
 #    the evaluator is the default's, runs/evaluator), the stream table, the probes and the new action probes.
 t2m export --family hifigpt --vq "$RUNS/rvq_causal" --hifigpt "$RUNS/hifigpt" --int8 text,temporal,residual \
   --name t2m-both-hifigpt-minilm --version 0.4.0 -o "$RUNS/bundle"
-t2m index-captions "$RUNS/bundle" --data "$DATA"
+# the unknown-text threshold calibrated on phrasings written for the merged data before training (CMU's actions
+# known; t2m/export/writing/phrasings/bandai_cmu_known_unknown.json); false and missed warning rates go on the card
+t2m index-captions "$RUNS/bundle" --data "$DATA" \
+  --phrasings t2m/export/writing/phrasings/bandai_cmu_known_unknown.json
 for bundle in t2m/bundles/default "$RUNS/bundle"; do
   name="$(basename "$bundle")"
   t2m eval --bundle "$bundle" --data data/bandai --evaluator "${EVALUATOR:-runs/evaluator}" --guidance 3 \
