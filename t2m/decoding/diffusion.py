@@ -41,10 +41,11 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-__all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "Denoiser", "DiffusionChain", "DiffusionJob", "JoinWindow", "NoiseSource",
-           "Schedule", "SegmentChain", "chain_calls", "cosine_alpha_bar", "cosine_betas", "cosine_schedule",
-           "crossfade_weights", "denoise_step", "guided", "join_windows", "noise_from", "numbered_join_windows",
-           "official_to_frames", "run_jobs", "sample", "sample_chains", "sample_segment_chains", "start"]
+__all__ = ["DIP_GUIDANCE", "MDM_GUIDANCE", "CrossFade", "Denoiser", "DiffusionChain", "DiffusionJob", "JoinWindow",
+           "NoiseSource", "Schedule", "SegmentChain", "chain_calls", "cosine_alpha_bar", "cosine_betas",
+           "cosine_schedule", "crossfade_weights", "denoise_step", "guided", "join_windows", "noise_from",
+           "numbered_join_windows", "official_to_frames", "run_jobs", "sample", "sample_chains",
+           "sample_segment_chains", "start"]
 
 MDM_GUIDANCE = 2.5   # generate.py's default guidance_param
 DIP_GUIDANCE = 7.5   # DiP.md's command line
@@ -174,6 +175,15 @@ def official_to_frames(x: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------------------- jobs
 
 
+class CrossFade(NamedTuple):
+    """Where a job's conditional prediction fades in from: the previous sentence's text and mask, and the job's own
+    text's weight per frame [frames, 1] (crossfade_weights)."""
+
+    text: np.ndarray
+    text_mask: np.ndarray | None
+    weight: np.ndarray
+
+
 @dataclass
 class DiffusionJob:
     """One motion to denoise: its condition, length, generator and settings, and the running state (x_t and the
@@ -185,9 +195,7 @@ class DiffusionJob:
     rng: np.random.Generator
     guidance: float = 1.0
     text_mask: np.ndarray | None = None     # [L] bool, True = real token (token states only)
-    # a cross-fade from the previous sentence: its (text, text_mask), and this text's weight per frame [frames, 1]
-    fade_from: tuple[np.ndarray, np.ndarray | None] | None = None
-    fade_weight: np.ndarray | None = None
+    crossfade: CrossFade | None = None      # DiP: the first call of a later sentence
     prefix: np.ndarray | None = None
     known: np.ndarray | None = None
     known_mask: np.ndarray | None = None
@@ -266,13 +274,14 @@ def _denoiser_rows(jobs: Sequence[DiffusionJob], features: int) -> _Rows:
     prefix) for each guided job, then a row of the previous sentence's text for each cross-fading job; x_t
     zero-padded to the longest job."""
     nulls = [job for job in jobs if job.guided]
-    fading = [job for job in jobs if job.fade_from is not None]
+    fading = [job for job in jobs if job.crossfade is not None]
     rows = [*jobs, *nulls, *fading]
     x = np.zeros((len(rows), max(job.frames for job in jobs), features), np.float32)
     for row, job in enumerate(rows):
         x[row, : job.frames] = job.x
+    fades = [job.crossfade for job in fading if job.crossfade is not None]
     text, mask = _batch_text([(job.text, job.text_mask) for job in [*jobs, *nulls]]
-                             + [job.fade_from for job in fading if job.fade_from is not None])
+                             + [(fade.text, fade.text_mask) for fade in fades])
     text[len(jobs):len(jobs) + len(nulls)] = 0.0
     return _Rows(x, np.array([job.t for job in rows], np.int64), text, mask,
                  np.array([job.frames for job in rows], np.int64), _batch_prefix(rows))
@@ -288,8 +297,9 @@ def denoise_step(denoiser: Denoiser, schedule: Schedule, jobs: Sequence[Diffusio
     fade_row = null_row + sum(job.guided for job in jobs)
     for row, job in enumerate(jobs):
         prediction = x0[row, : job.frames]
-        if job.fade_from is not None and job.fade_weight is not None:
-            prediction = job.fade_weight * prediction + (np.float32(1.0) - job.fade_weight) * x0[fade_row, : job.frames]
+        if job.crossfade is not None:
+            weight = job.crossfade.weight
+            prediction = weight * prediction + (np.float32(1.0) - weight) * x0[fade_row, : job.frames]
             fade_row += 1
         if job.guided:
             prediction = guided(prediction, x0[null_row, : job.frames], job.guidance)
@@ -420,9 +430,9 @@ class SegmentChain:
         job = DiffusionJob(text=self.texts[segment], frames=pred_len, rng=self.rng, guidance=self.guidance,
                            text_mask=mask, prefix=self.prefix, noise=self.noise)
         if self.crossfade > 0 and segment > 0 and not self.made[segment]:
-            job.fade_from = (self.texts[segment - 1],
-                             None if self.text_masks is None else self.text_masks[segment - 1])
-            job.fade_weight = crossfade_weights(pred_len, self.crossfade)
+            job.crossfade = CrossFade(self.texts[segment - 1],
+                                      None if self.text_masks is None else self.text_masks[segment - 1],
+                                      crossfade_weights(pred_len, self.crossfade))
         return job
 
     def keep(self, segment: int, new: np.ndarray, kept: int) -> None:
