@@ -19,13 +19,17 @@ TEXT="$RUNS/text_minilm.npz"
   --out data/cmu
 [ -f "$DATA/summary.json" ] || t2m data merge --input bn-=data/bandai --input cmu-=data/cmu --out "$DATA"
 
-# 1. The residual VQ (the default's stage 1; 24000 steps).
+# 1. The residual VQ (the default's stage 1; 24000 steps). Ran 2026-11-26 in three sittings (--resume at 7500 and
+#    8000; --threads 2 for ~10 minutes of it), 11:04-13:04 and 14:23-16:01 beside other work: ~3.3 steps/s on one
+#    idle thread here. Validation reconstruction loss 0.147 (step 1000) -> 0.046 (7000) -> 0.035 (18000) -> 0.031
+#    (24000; the default's VQ on Bandai alone: 0.032); val MPJPE (global, drift included) 159 -> 100 mm.
 t2m train vq --data "$DATA" --out "$RUNS/rvq" --steps 24000 --batch-size 64 --window 32 --width 128 --code-dim 128 \
   --nb-code 256 --down-t 3 --quantizer residual --residual-layers 6 --shared-codebook --quantizer-dropout 0.2 \
   --lr 2e-4 --warmup-steps 300 --lr-milestones 0.8 --balance-power 0.5 --bone-weight 0.5 --log-every 50 \
   --val-every 1000 --save-every 500 --threads 1 --seed 0
 
-# 2. The double-tier GPT (the default's stage 2 + 2b in one run of 6000 steps).
+# 2. The double-tier GPT (the default's stage 2 + 2b in one run of 6000 steps). Started 2026-11-26 16:01 with
+#    --threads 1 beside stage 3 (the two share the 2 cores); continue with --resume.
 t2m train hifigpt --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/hifigpt" --steps 6000 --batch-size 64 --lr 4e-4 \
   --warmup-steps 200 --lr-milestones 0.75 --embed 256 --heads 4 --temporal-layers 3 --residual-gpt-layers 3 \
   --max-tokens 25 --corruption 0.5 --cond-drop 0.1 --cond-noise 0.8 --length-keep 0.8 --stop-weight 1.0 \
