@@ -210,3 +210,23 @@ def test_the_standing_prefix_decodes_to_a_pose_that_does_not_move():
     assert np.abs(joints - joints[:1]).max() < 1e-6
     drifting = features_to_joints(np.zeros((20, 263), np.float32) * std + mean)   # control: the mean frame moves
     assert np.abs(drifting - drifting[:1]).max() > 1e-3
+
+
+def test_the_exporter_refuses_a_crossfade_longer_than_a_call_before_writing_anything(tmp_path):
+    """A DiP cross-fade happens within one call: the exporter refuses 17 frames on 16-frame calls before it writes
+    any graph (the text source is never asked to write)."""
+    from t2m.export.families.diffusion import export_diffusion_bundle
+    from t2m.export.families.diffusion_random import random_diffusion_model
+
+    class Untouched:
+        def write(self, out_dir):
+            raise AssertionError("the text graph was written before the cross-fade was checked")
+
+    model = random_diffusion_model("dip", 0)
+    assert model.config.pred_len == 16   # control: the refusal below is about the length, not the arch
+    mean, std = random_statistics(0)
+    with pytest.raises(ValueError, match=r"crossfade must be within 1\.\.16 \(one call\), got 17"):
+        export_diffusion_bundle(tmp_path / "dip", model=model, mean=mean, std=std, text_source=Untouched(),
+                                name="x", version="0.0.0", training_data={}, license="x", default_guidance=7.5,
+                                crossfade=17)
+    assert not any((tmp_path / "dip").glob("*.onnx"))

@@ -73,6 +73,8 @@ def export_diffusion_bundle(
     mean, std = np.asarray(mean, np.float32), np.asarray(std, np.float32)
     if mean.shape != (c.features,) or std.shape != (c.features,):
         raise ValueError(f"mean/std must be [{c.features}], got {mean.shape} / {std.shape}")
+    if c.pred_len > 0 and crossfade and not 0 < crossfade <= c.pred_len:
+        raise ValueError(f"crossfade must be within 1..{c.pred_len} (one call), got {crossfade}")
     text = text_source.write(out_dir)
     if text["dim"] != c.text_dim:
         raise ValueError(f"the text encoder gives {text['dim']}-d features, the model reads {c.text_dim}")
@@ -103,8 +105,6 @@ def export_diffusion_bundle(
              "join_frames": 0 if chained else join_frames, "join_context": 0 if chained else join_context,
              "prefix": PREFIX_FILE if chained else None}
     if chained and crossfade:
-        if not 0 < crossfade <= c.pred_len:
-            raise ValueError(f"crossfade must be within 1..{c.pred_len} (one call), got {crossfade}")
         block["crossfade"] = int(crossfade)
     manifest: dict[str, Any] = {
         "family": "diffusion", "name": name, "version": version, **motion_fields(c.features, 1, max_frames),
