@@ -450,7 +450,10 @@ def main(argv: list[str] | None = None) -> int:
             case = attempt(failures, name, builders[name])
             if case is not None:
                 notes.append(f"- {case.label}: {case.note} (built in {time.perf_counter() - built:.0f} s)")
-                rows += bench_case(case, args.device, args.batches, args.repeats, ort_ok, torch_ok, failures)
+                case_rows = bench_case(case, args.device, args.batches, args.repeats, ort_ok, torch_ok, failures)
+                rows += case_rows
+                print("\n".join(table(case_rows)[2:]), file=sys.stderr, flush=True)   # a cut-off run keeps them
+                write_record(args.out, machine(args.device), missing, failures, notes, rows)
     info = machine(args.device)
     print(f"## GPU suite ({args.device}; {info.get('gpu', platform.processor() or 'cpu')}; torch {torch.__version__}; "
           f"onnxruntime {ort.__version__})\n")
@@ -459,12 +462,18 @@ def main(argv: list[str] | None = None) -> int:
         f"- batch B = B motions of 10 s with guidance (2B rows); median of {args.repeats} run(s) after a warm-up; "
         "ms per 10 s motion = the batch's generate + decode; motions / s = B / that; vs PyTorch = the PyTorch "
         "row's ms per 10 s motion / this row's", f"- whole run {time.perf_counter() - started:.0f} s"]))
-    args.out.mkdir(parents=True, exist_ok=True)
+    write_record(args.out, info, missing, failures, notes, rows)
+    return 1 if failures else 0
+
+
+def write_record(out: Path, info: dict[str, Any], missing: list[str], failures: list[str], notes: list[str],
+                 rows: list[Row]) -> None:
+    """OUT/gpu_suite.json, rewritten after each model so that a run cut off by its time limit keeps what it measured."""
+    out.mkdir(parents=True, exist_ok=True)
     record = {"machine": info, "missing": missing, "failures": failures, "notes": notes,
               "rows": [{**asdict(row), "ms_motion": row.ms_motion, "motions_per_s": row.motions_per_s}
                        for row in rows]}
-    (args.out / "gpu_suite.json").write_text(json.dumps(record, indent=2))
-    return 1 if failures else 0
+    (out / "gpu_suite.json").write_text(json.dumps(record, indent=2))
 
 
 if __name__ == "__main__":

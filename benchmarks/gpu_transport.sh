@@ -5,7 +5,7 @@
 #
 #   here:    benchmarks/gpu_transport.sh prepare WHEEL    # .gpu/ort-slim.tar.xz (the wheel without its CUDA
 #                                                         # provider, ~18 MB) + .gpu/cuda.xz.part-* (the provider,
-#                                                         # 284 MB -> ~185 MB xz, in parts of PART_MB, default 47)
+#                                                         # 284 MB, sm_90 code only -> 52 MB xz, parts of PART_MB)
 #            benchmarks/gpu_transport.sh slim             # the bundles (70 MB) leave git's index (not the disk), so
 #                                                         # the travelling tree is ~9 MB; `restore` puts them back
 #   device:  one call per part, carrying it, each `benchmarks/gpu_transport.sh keep DIR` (copies .gpu/* to DIR);
@@ -32,7 +32,13 @@ case "${1:-}" in
     python3 -m zipfile -e "$wheel" "$work/site"
     [ -f "$work/site/$provider" ] || { echo "gpu_transport: $wheel holds no $provider" >&2; exit 2; }
     rm -rf "$stage"; mkdir -p "$stage"; exclude "/$stage/"
-    xz -T0 -6 -c "$work/site/$provider" | split -b "${PART_MB:-47}M" -d - "$stage/cuda.xz.part-"
+    # only the lent GPUs' machine code (sm_90: H100/H200) is kept, the other architectures' bytes are zeroed:
+    # 185 MB of xz -> 52 MB, so the provider travels in one call (KEEP_SM=all keeps everything)
+    if [ "${KEEP_SM:-90}" != all ]; then
+      python3 "$repo/benchmarks/fatbin_keep_arch.py" "$work/site/$provider" "$work/provider.so" --keep-sm "${KEEP_SM:-90}"
+      mv "$work/provider.so" "$work/site/$provider"
+    fi
+    xz -T0 -6 -c "$work/site/$provider" | split -b "${PART_MB:-58}M" -d - "$stage/cuda.xz.part-"
     rm "$work/site/$provider"
     tar -C "$work/site" -cJf "$stage/ort-slim.tar.xz" .
     ls -l "$stage" | awk 'NR > 1 {printf "%s %.1f MB\n", $9, $5 / 1e6}'
