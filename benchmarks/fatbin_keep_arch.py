@@ -55,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("library", type=Path)
     parser.add_argument("out", type=Path)
-    parser.add_argument("--keep-sm", type=int, default=90, help="the SM version whose machine code stays (90: H100/H200)")
+    parser.add_argument("--keep-sm", type=int, default=90,
+                        help="the SM version whose machine code stays (90: H100/H200)")
     args = parser.parse_args(argv)
     data = bytearray(args.library.read_bytes())
     try:

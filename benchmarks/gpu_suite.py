@@ -79,6 +79,51 @@ class Case:
     kv_cache: bool = True                       # False: whole-map passes (masked), nothing to bind
 
 
+GRAPHS = ("shipped", "float32", "fp16", "fp16-fused")
+
+
+@dataclass
+class Graphs:
+    """Which graphs the onnxruntime column runs: as shipped/exported, int8 ones dequantised to float32, or float16
+    (int8 dequantised first); the PyTorch column runs under float16 autocast for fp16. Converted copies go to
+    `workdir`, once per file."""
+
+    kind: str
+    workdir: Path
+
+    def __call__(self, path: Path) -> Path:
+        if self.kind == "shipped":
+            return path
+        import onnx
+
+        from t2m.export.writing.dequantize import dequantize_graph, is_int8_dynamic
+        from t2m.export.writing.quantize import convert_graph_fp16
+
+        out = self.workdir / f"{self.kind}_{path.parent.name}_{path.name}"
+        if not out.exists():
+            source = path
+            if is_int8_dynamic(onnx.load(str(path))):
+                source = dequantize_graph(path, self.workdir / f"dequantized_{path.parent.name}_{path.name}")
+            if self.kind == "fp16":
+                convert_graph_fp16(source, out)
+            elif self.kind == "fp16-fused":     # onnxruntime's transformer fusions (SkipLayerNorm, ...), then fp16
+                from onnxruntime.transformers.optimizer import optimize_model
+
+                fused = optimize_model(str(source), model_type="gpt2", num_heads=0, hidden_size=0, opt_level=1,
+                                       use_gpu=True)
+                fused.convert_float_to_float16(keep_io_types=True)
+                fused.save_model_to_file(str(out))
+            else:
+                out.write_bytes(source.read_bytes())
+        return out
+
+    def torch_context(self, device: str) -> Any:
+        import contextlib
+
+        half = self.kind.startswith("fp16")
+        return torch.autocast(device, dtype=torch.float16) if half else contextlib.nullcontext()
+
+
 def median_ms(fn: Callable[[], object], repeats: int) -> float:
     times = []
     for _ in range(repeats):
@@ -127,10 +172,16 @@ def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int
     return generate
 
 
+GRAPH_VARIANT: Graphs | None = None      # set by main from --graphs
+
+
 def session(path: Path, execution: Any) -> ort.InferenceSession:
+    """The graph at `path` (converted as --graphs says) on the execution's providers."""
     from t2m.service.engine.bundle import open_session, session_options
 
-    return open_session(path, session_options(0, 1), execution)
+    served = GRAPH_VARIANT(path) if GRAPH_VARIANT is not None and path.stem != "decoder" and \
+        not path.stem.endswith("_decoder") else path
+    return open_session(served, session_options(0, 1), execution)
 
 
 def onnx_gpt(step_path: Path, n_layer: int, n_head: int, head_dim: int, length: bool, dim: int, tokens: int,
@@ -338,14 +389,27 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
     from t2m.service.engine.execution import Execution
 
     providers = ("cuda",) if device == "cuda" else ("cpu",)
+    kind = GRAPH_VARIANT.kind if GRAPH_VARIANT is not None else "shipped"
+    graphs = "" if kind == "shipped" else f" {kind}"
     makers: dict[str, Callable[[], Generate]] = {}
     if ort_ok and case.kv_cache:
-        makers[f"onnxruntime {device}, I/O binding"] = lambda: case.onnx(Execution(providers, io_binding="on"))
-        makers[f"onnxruntime {device}, numpy caches"] = lambda: case.onnx(Execution(providers, io_binding="off"))
+        makers[f"onnxruntime {device}{graphs}, I/O binding"] = \
+            lambda: case.onnx(Execution(providers, io_binding="on"))
+        makers[f"onnxruntime {device}{graphs}, numpy caches"] = \
+            lambda: case.onnx(Execution(providers, io_binding="off"))
     elif ort_ok:
-        makers[f"onnxruntime {device}"] = lambda: case.onnx(Execution(providers))
+        makers[f"onnxruntime {device}{graphs}"] = lambda: case.onnx(Execution(providers))
     if torch_ok and case.torch is not None:
-        makers[f"PyTorch eager {device}"] = lambda: case.torch(torch.device(device))  # type: ignore[misc]
+        def make_torch() -> Generate:
+            generate = case.torch(torch.device(device))  # type: ignore[misc]
+            if GRAPH_VARIANT is None or not kind.startswith("fp16"):
+                return generate
+
+            def autocast(batch: int) -> np.ndarray:
+                with GRAPH_VARIANT.torch_context(device):
+                    return generate(batch)
+            return autocast
+        makers[f"PyTorch eager {device}{' fp16 autocast' if kind.startswith('fp16') else ''}"] = make_torch
     decoder = attempt(failures, f"{case.label} decoder.onnx", lambda: session(case.decoder, Execution(providers)))
     samplers = {method: attempt(failures, f"{case.label} {method}", make) for method, make in makers.items()}
     sync = torch.cuda.synchronize if device == "cuda" and torch_ok else (lambda: None)
@@ -415,6 +479,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per row, median reported (default 3)")
     parser.add_argument("--models", default=",".join(MODELS), help=f"comma-separated subset of {', '.join(MODELS)}")
     parser.add_argument("--tiny", action="store_true", help="release cases at toy sizes (tests on CPU)")
+    parser.add_argument("--graphs", choices=GRAPHS, default="shipped",
+                        help="shipped: the graphs as exported (the default model's steps are int8); float32: int8 "
+                             "graphs dequantised; fp16: float16 graphs (int8 dequantised first) and PyTorch under "
+                             "float16 autocast; fp16-fused: onnxruntime's transformer fusions first")
     args = parser.parse_args(argv)
     args.batches = [int(b) for b in args.batches.split(",") if b.strip()]
     args.models = [m.strip() for m in args.models.split(",") if m.strip()]
@@ -439,8 +507,10 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[Row] = []
     notes: list[str] = []
     failures: list[str] = []
+    global GRAPH_VARIANT
     with tempfile.TemporaryDirectory(prefix="gpu-suite-") as temporary:
         workdir = Path(temporary)
+        GRAPH_VARIANT = Graphs(args.graphs, workdir)
         builders: dict[str, Callable[[], Case]] = {
             "gpt": embedded_gpt_case, "default": embedded_hifigpt_case, "masked": embedded_masked_case,
             "t2m-gpt-release": lambda: release_gpt_case(workdir, args.tiny),

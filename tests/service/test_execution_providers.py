@@ -95,3 +95,22 @@ def test_serve_leaves_the_environment_as_it_found_it(monkeypatch):
     import os
 
     assert os.environ.get("T2M_EXECUTION_PROVIDERS") in (None, "cpu")
+
+
+def test_int8_step_graphs_on_a_gpu_provider_name_the_float_copy_to_serve(caplog):
+    import json
+    import logging
+
+    from t2m.bundles import DEFAULT_BUNDLE
+    from t2m.service.engine.bundle import _warn_int8_on_gpu
+
+    raw = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())
+    with caplog.at_level(logging.WARNING, logger="t2m.service.engine.bundle"):
+        _warn_int8_on_gpu(raw, DEFAULT_BUNDLE, Execution(("cpu",)))
+        assert not caplog.records                                   # CPU: int8 is the fast rule there
+        _warn_int8_on_gpu({**raw, "quantization": {"text_encoder": "int8-dynamic"}}, DEFAULT_BUNDLE,
+                          Execution(("cuda",)))
+        assert not caplog.records                                   # the text encoder runs once per sentence
+        _warn_int8_on_gpu(raw, DEFAULT_BUNDLE, Execution(("cuda",)))
+    [record] = caplog.records
+    assert "residual_step, temporal_step are int8-dynamic" in record.message and "--scheme float32" in record.message

@@ -4,6 +4,7 @@ HiFiGPT steps).
 
     t2m quantize bundles/t2m-gpt -o bundles/t2m-gpt-int4 --scheme int4
     t2m quantize models/mogents -o models/mogents-int8
+    t2m quantize t2m/bundles/default -o bundles/default-gpu --scheme fp16     # the int8 default, for a GPU
 
 Why a separate step: a bundle, exported here or imported from a release, is quantised after the fact and measured
 as served against its float32 original (the same seeded requests on both: token agreement and the largest logit
@@ -19,7 +20,8 @@ from t2m.cli.main import CliError
 
 SCHEME_HELP = ("int8: dynamic, 7-bit weights (MatMulInteger; the shipped rule, fastest on CPUs); int4: MatMulNBits "
                "weights in blocks of 128 with int8 compute, for release-size graphs bound by memory bandwidth; "
-               "fp16: float16 weights and compute with float32 inputs and outputs, for GPUs (runs, slowly, on CPU)")
+               "fp16: float16 weights and compute with float32 inputs and outputs, for GPUs (runs, slowly, on CPU); "
+               "float32: an int8 bundle's graphs dequantised, for GPUs (fp16 takes int8 bundles too)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("bundle", type=Path, help="a bundle directory (read, never changed)")
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="bundle directory to write")
-    parser.add_argument("--scheme", choices=("int8", "int4", "fp16"), default="int8", help=SCHEME_HELP)
+    parser.add_argument("--scheme", choices=("int8", "int4", "fp16", "float32"), default="int8", help=SCHEME_HELP)
     parser.add_argument("--version", default=None, help="the copy's version (default: the original's)")
     parser.add_argument("--parity-runs", type=int, default=None, metavar="N",
                         help="seeded requests served on both bundles to measure parity (default 8; 0 skips it)")
@@ -55,7 +57,7 @@ def summary(manifest: dict, output: Path, report: dict | None) -> str:
 
     graphs = ", ".join(f"{name} {manifest['quantization'][Path(name).stem]} "
                        f"({(output / name).stat().st_size / 1e6:.1f} MB)" for name in quantized_graphs(manifest))
-    parity = "" if report is None else (f"; {100 * report['agreement']:.1f}% of tokens as float32's over "
+    parity = "" if report is None else (f"; {100 * report['agreement']:.1f}% of tokens as the original's over "
                                         f"{report['runs']} seeded requests, max |logit diff| "
                                         f"{report['max_abs_logit_diff']:.3g}")
     return f"{manifest['name']} {manifest['version']}: {graphs}{parity}; written to {output} and verified"

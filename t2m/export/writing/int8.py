@@ -22,17 +22,24 @@ from t2m.bundle import MANIFEST_NAME
 from t2m.export.kit.checks import INT8_LABEL
 from t2m.export.writing.bundle import check_out_dir, prepare_out_dir, write_bundle
 
-__all__ = ["FP16_LABEL", "INT4_LABEL", "SCHEMES", "quantize_bundle", "quantize_bundle_gpt", "quantized_graphs"]
+__all__ = ["DEQUANTIZED_LABEL", "FP16_LABEL", "INT4_LABEL", "SCHEMES", "quantize_bundle", "quantize_bundle_gpt",
+           "quantized_graphs"]
 
 INT4_LABEL = "int4-matmulnbits"
 FP16_LABEL = "fp16"
-SCHEMES = ("int8", "int4", "fp16")
+DEQUANTIZED_LABEL = "float32-dequantized"
+SCHEMES = ("int8", "int4", "fp16", "float32")
+# schemes that also take int8-dynamic graphs (dequantised first): the GPU copies of the shipped int8 bundles
+FROM_INT8 = ("fp16", "float32")
+FLOAT32 = "float32"
 WHAT = {
     INT8_LABEL: "int8 MatMul/Gemm weights (per channel, 7 bits) and embedding tables, activations quantised on the "
                 "fly (MatMulInteger)",
     INT4_LABEL: "int4 MatMul weights in blocks of 128 with int8 compute (MatMulNBits)",
     FP16_LABEL: "float16 weights and compute, float32 inputs and outputs (for GPUs; op types onnxruntime's "
                 "converter blocks stay float32)",
+    DEQUANTIZED_LABEL: "int8 weights dequantised to float32 MatMuls and tables (for GPUs: onnxruntime's CUDA "
+                       "provider has no DynamicQuantizeLinear kernel)",
 }
 
 
@@ -45,7 +52,26 @@ def _quantizer(scheme: str) -> tuple[Callable[[Path, Path], Path], str]:
         return quantize_graph_int4, INT4_LABEL
     if scheme == "fp16":
         return convert_graph_fp16, FP16_LABEL
+    if scheme == "float32":
+        return _copy_float, DEQUANTIZED_LABEL
     raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
+
+
+def _copy_float(src: Path, dst: Path) -> Path:
+    """The float32 scheme's graph: an int8-dynamic one dequantised (a float32 graph has nothing to undo)."""
+    from t2m.export.writing.dequantize import dequantize_graph
+
+    return dequantize_graph(src, dst)
+
+
+def _from_int8(quantize: Callable[[Path, Path], Path]) -> Callable[[Path, Path], Path]:
+    """`quantize` applied to the dequantised float graph of an int8-dynamic one."""
+    from t2m.export.writing.dequantize import dequantize_graph
+
+    def convert(src: Path, dst: Path) -> Path:
+        with tempfile.TemporaryDirectory(prefix="dequantized-") as tmp:
+            return quantize(dequantize_graph(src, Path(tmp) / src.name), dst)
+    return convert
 
 
 def quantized_graphs(manifest: dict[str, Any]) -> tuple[str, ...]:
@@ -76,7 +102,12 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     if not graphs:
         raise ValueError(f"{src}: family {manifest.get('family', 'gpt')!r} declares no graphs to quantise")
     done = {name: (manifest.get("quantization") or {}).get(Path(name).stem) for name in graphs}
-    if any(done.values()):
+    if scheme in FROM_INT8 and all(value == INT8_LABEL for value in done.values()):
+        quantize = _from_int8(quantize) if scheme != "float32" else quantize
+    elif scheme == "float32":
+        raise ValueError(f"{src}: the float32 scheme dequantises int8-dynamic graphs; this bundle's are "
+                         f"{', '.join(f'{name}: {value or FLOAT32}' for name, value in done.items())}")
+    elif any(done.values()):
         name, already = next((name, value) for name, value in done.items() if value)
         raise ValueError(f"{src}: {name} is already {already}")
     if parity and out.resolve() == src.resolve():
@@ -107,7 +138,9 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     card = out / "MODEL_CARD.md"
     if card.is_file():
         text = _quantisation_row(card.read_text(encoding="utf-8"), written)
-        card.write_text(f"{text.rstrip()}\n\n{card_section(label, report.as_dict(), sizes)}", encoding="utf-8")
+        source = "the int8 bundle" if scheme in FROM_INT8 and all(done.values()) else "the float32 bundle"
+        card.write_text(f"{text.rstrip()}\n\n{card_section(label, report.as_dict(), sizes, source)}",
+                        encoding="utf-8")
         written = write_bundle(out, {name: out / name for name in names}, written)
     return written, {**report.as_dict(), "scheme": label,
                      "bytes": {name: {"float32": a, label: b} for name, (a, b) in sizes.items()}}
@@ -121,20 +154,21 @@ def _quantisation_row(card: str, manifest: dict[str, Any]) -> str:
     return re.sub(r"^\| quantisation \|.*\|$", lambda _: row, card, flags=re.MULTILINE)
 
 
-def card_section(label: str, report: dict[str, Any], sizes: dict[str, tuple[int, int]]) -> str:
+def card_section(label: str, report: dict[str, Any], sizes: dict[str, tuple[int, int]],
+                 source: str = "the float32 bundle") -> str:
     """The model card's section on a quantised copy: what was quantised, how, and its measured parity."""
-    lines = [f"## Quantisation: {label} (vs the float32 bundle)", "",
+    lines = [f"## Quantisation: {label} (vs {source})", "",
              f"Quantised graphs: {', '.join(f'`{name}`' for name in sizes)}: {WHAT[label]}. The text encoder, the "
              "decoder and any length graph stay float32 (run once per request, not per step; the text features "
              "condition every token).", "",
              f"Measured as served, on {report['runs']} seeded one-sentence requests of {report['seconds']:g} s at the "
              f"bundle's default settings (sampling as served): {report['agreeing']} of {report['tokens']} tokens the "
-             f"same as the float32 bundle's ({100 * report['agreement']:.1f}%; once one draw differs, the rest of "
+             f"same as {source}'s ({100 * report['agreement']:.1f}%; once one draw differs, the rest of "
              "that motion may take another path).", ""]
     for name, (before, after) in sizes.items():
         g = report["graphs"][name]
-        lines.append(f"- `{name}`: max |logit diff| {g['max_abs_logit_diff']:.3g} on the float32 trajectory "
-                     f"({g['calls']} calls; float32 logits up to {g['max_abs_logit']:.3g}); {before / 1e6:.1f} -> "
+        lines.append(f"- `{name}`: max |logit diff| {g['max_abs_logit_diff']:.3g} on {source}'s trajectory "
+                     f"({g['calls']} calls; its logits up to {g['max_abs_logit']:.3g}); {before / 1e6:.1f} -> "
                      f"{after / 1e6:.1f} MB")
     return "\n".join(lines) + "\n"
 
