@@ -45,6 +45,10 @@ def training_data_entry(summary_path: Path) -> dict[str, str]:
     attribution = summary.get("attribution", "")
     if summary.get("captions"):
         attribution = f"{attribution} Captions: {summary['captions']}.".strip()
+    for source in summary.get("sources") or []:     # a merged dataset (t2m data merge): every source's terms
+        part = f"{source.get('name', source.get('prefix', '?'))} ({source.get('license', 'licence not stated')}): " \
+               f"{source.get('attribution', '')}".strip()
+        attribution = f"{attribution} {part}".strip()
     return {"name": summary["name"], "license": summary["license"], "attribution": attribution}
 
 
