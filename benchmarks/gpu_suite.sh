@@ -50,4 +50,5 @@ PY
 export LD_LIBRARY_PATH="${nvidia_libs}${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 export PYTHONPATH="$site:$repo${PYTHONPATH:+:$PYTHONPATH}"
 cd "$repo"
-exec timeout "${SUITE_TIMEOUT_S:-420}" "$python" benchmarks/gpu_suite.py --out "$out" --device cuda "$@"
+# GPU_SCRIPT: another script of the same environment and options (benchmarks/gpu_profile.py)
+exec timeout "${SUITE_TIMEOUT_S:-420}" "$python" "${GPU_SCRIPT:-benchmarks/gpu_suite.py}" --out "$out" --device cuda "$@"

@@ -16,7 +16,7 @@ repo="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$repo"
 stage=".gpu"
 provider="onnxruntime/capi/libonnxruntime_providers_cuda.so"
-bundles=(t2m/bundles/default t2m/bundles/gpt t2m/bundles/masked)
+bundles=(t2m/bundles/default t2m/bundles/gpt t2m/bundles/masked t2m/bundles/both)
 
 exclude() {   # add (or with "-d" remove) one line of .git/info/exclude: ignored paths do not travel unless carried
   local file; file="$(git rev-parse --git-path info/exclude)"; mkdir -p "$(dirname "$file")"; touch "$file"
@@ -44,11 +44,11 @@ case "${1:-}" in
     ls -l "$stage" | awk 'NR > 1 {printf "%s %.1f MB\n", $9, $5 / 1e6}'
     ;;
   slim)
-    for b in "${bundles[@]}"; do git rm -r -q --cached "$b" && exclude "/$b/"; done
+    for b in "${bundles[@]}"; do [ -d "$b" ] || continue; git rm -r -q --cached "$b" && exclude "/$b/"; done
     echo "bundles out of the index (on disk still); travelling tree: $(git ls-files -z | du -cb --files0-from=- | tail -1 | cut -f1) bytes; run 'restore' after"
     ;;
   restore)
-    for b in "${bundles[@]}"; do exclude -d "/$b/"; git reset -q -- "$b"; done
+    for b in "${bundles[@]}"; do [ -d "$b" ] || continue; exclude -d "/$b/"; git reset -q -- "$b"; done
     git status --short -- t2m/bundles
     ;;
   keep)   # on the device: this call's parts into DIR, which outlives the call while the machine stays warm

@@ -100,3 +100,16 @@ def test_the_wheel_travels_in_parts_and_comes_together_byte_for_byte(tmp_path):
     assert _git(repo, "status", "--porcelain") == ""
     bad = run("prepare", str(tmp_path / "missing.whl"))
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "no wheel" in bad.stderr
+
+
+def test_gpu_profile_sums_onnxruntimes_profile_per_operator_on_cpu(tmp_path, capsys):
+    """benchmarks/gpu_profile.py (the device check of where a step's time goes) runs here on the CPU provider: every
+    node of the profiled run is summed per operator, and the node time is part of the session runs' time."""
+    from benchmarks.gpu_profile import main
+
+    assert main(["--out", str(tmp_path), "--device", "cpu", "--tiny", "--models", "t2m-gpt-release"]) == 0
+    summary = json.loads((tmp_path / "profile_t2m-gpt-release.json").read_text())
+    nodes = summary["nodes"]
+    assert "MatMul (CPUExecutionProvider)" in nodes and all(entry["calls"] > 0 for entry in nodes.values())
+    assert 0 < sum(entry["ms"] for entry in nodes.values()) <= summary["runs_ms"]
+    assert "| operator (provider) | ms | calls | us per call |" in capsys.readouterr().out
