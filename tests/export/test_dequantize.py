@@ -77,3 +77,23 @@ def test_an_int8_bundle_gets_float32_and_fp16_copies_and_a_float_one_is_refused(
     assert json.loads((tmp_path / "int8" / "manifest.json").read_text())["quantization"]["gpt_step"] == "int8-dynamic"
     with pytest.raises(ValueError, match="dequantises int8-dynamic graphs"):
         quantize_bundle(src, tmp_path / "again", scheme="float32", parity=False)
+
+
+def test_the_masked_graph_with_an_int8_table_read_into_a_matmul_is_dequantised(tmp_path):
+    """The masked family's int8 graph feeds a Gather of its int8 token table straight into a MatMulInteger (no
+    DynamicQuantizeLinear): the table's rows are dequantised by the table's own scale, the logits kept."""
+    from t2m.bundles import EMBEDDED_BUNDLES
+
+    bundle = EMBEDDED_BUNDLES["masked"]
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    src = bundle / "masked.onnx"
+    dst = dequantize_graph(src, tmp_path / "masked.onnx")
+    assert not _op_types(dst) & INT8_OPS
+    rng = np.random.default_rng(2)
+    columns, codebook = manifest["masked"]["columns"], manifest["codebook_size"]
+    feeds = {"tokens": rng.integers(0, codebook, (2, 10, columns)),
+             "cond": rng.normal(size=(2, manifest["text_encoder"]["dim"])).astype(np.float32) * 0.05,
+             "length": np.array([10, 7])}
+    int8_logits, logits = (ort_session(path).run(None, feeds)[0] for path in (src, dst))
+    assert np.abs(logits - int8_logits).max() < 0.1 * np.abs(int8_logits).max()
+    assert (logits.argmax(-1) == int8_logits.argmax(-1)).mean() >= 0.75

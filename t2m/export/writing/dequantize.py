@@ -64,20 +64,36 @@ def dequantize_graph(src: str | Path, dst: str | Path) -> Path:
     replace: dict[int, Any] = {}         # id(node) -> its float replacement
     drop: set[int] = set()
     new_inits = []
+    after: dict[int, Any] = {}            # id(node) -> a new node placed right after it (its inputs are ready there)
     for node in graph.node:
         if node.op_type == "MatMulInteger":
-            x_q, w_q, _, w_zp = node.input
+            x_q, w_q, x_zp, w_zp = node.input
             quantize = producer.get(x_q)
-            if quantize is None or quantize.op_type != "DynamicQuantizeLinear":
-                raise ValueError(f"{src}: node {node.name!r}: expected its activations from DynamicQuantizeLinear")
             cast = only_consumer(node.output[0], "Cast", node.name)
             rescale = only_consumer(cast.output[0], "Mul", cast.name)
             scales = producer[next(name for name in rescale.input if name != cast.output[0])]
-            w_scale = next(name for name in scales.input if name in inits)
+            if quantize is not None and quantize.op_type == "DynamicQuantizeLinear":
+                x, x_scale = quantize.input[0], quantize.output[1]
+            elif quantize is not None and quantize.op_type == "Gather" and quantize.input[0] in inits:
+                # an int8 embedding table read straight into the MatMul: its rows dequantised by the table's own
+                # (per-tensor) scale, the other initializer of the scales' product
+                x_scale = next(name for name in scales.input if name in inits and not name.startswith(
+                    w_q.removesuffix("_quantized")))
+                table = _dequantized(constant(quantize.input[0]), constant(x_zp), constant(x_scale), axis=0)
+                table_name, x = f"{quantize.input[0]}_dequantized", f"{quantize.output[0]}_float"
+                new_inits.append(numpy_helper.from_array(table, table_name))
+                after[id(quantize)] = helper.make_node("Gather", [table_name, quantize.input[1]], [x],
+                                                       name=f"{quantize.name}_float",
+                                                       **{a.name: a.i for a in quantize.attribute
+                                                          if a.name == "axis"})
+            else:
+                raise ValueError(f"{src}: node {node.name!r}: expected its activations from DynamicQuantizeLinear "
+                                 "or from a Gather of an int8 table")
+            w_scale = next(name for name in scales.input if name != x_scale)
             weight = _dequantized(constant(w_q), constant(w_zp), constant(w_scale), axis=1)
             name = f"{w_q}_dequantized"
             new_inits.append(numpy_helper.from_array(weight, name))
-            replace[id(rescale)] = helper.make_node("MatMul", [quantize.input[0], name], list(rescale.output),
+            replace[id(rescale)] = helper.make_node("MatMul", [x, name], list(rescale.output),
                                                     name=f"{node.name}_float")
             drop.update({id(node), id(cast)})
         elif node.op_type == "DequantizeLinear" and node.input[0] in producer:
@@ -97,7 +113,12 @@ def dequantize_graph(src: str | Path, dst: str | Path) -> Path:
                                                  name=f"{gather.name}_float",
                                                  **{a.name: a.i for a in gather.attribute if a.name == "axis"})
             drop.add(id(gather))
-    nodes = [replace.get(id(node), node) for node in graph.node if id(node) not in drop]
+    nodes = []
+    for node in graph.node:
+        if id(node) not in drop:
+            nodes.append(replace.get(id(node), node))
+        if id(node) in after:
+            nodes.append(after[id(node)])
     nodes = _live(nodes, [out.name for out in graph.output])
     del graph.node[:]
     graph.node.extend(nodes)
