@@ -30,18 +30,18 @@ import onnxruntime as ort  # noqa: E402
 from benchmarks import gpu_suite  # noqa: E402
 
 PROFILED: list[ort.InferenceSession] = []
+SUITE_SESSION = gpu_suite.session
 
 
-def profiled_session(path: Path, execution: Any) -> ort.InferenceSession:
+def profiled_session(path: Path, execution: Any,
+                     options: ort.SessionOptions | None = None) -> ort.InferenceSession:
     """gpu_suite.session with onnxruntime's profiler on (its file written when the session ends its profiling)."""
-    from t2m.service.engine.bundle import open_session, session_options
+    from t2m.service.engine.bundle import session_options
 
-    served = gpu_suite.GRAPH_VARIANT(path) if gpu_suite.GRAPH_VARIANT is not None and "decoder" not in path.stem \
-        else path
-    options = session_options(0, 1)
+    options = options or session_options(0, 1)
     options.enable_profiling = True
     options.profile_file_prefix = str(Path(tempfile.gettempdir()) / f"ortprof_{path.stem}")
-    session = open_session(served, options, execution)
+    session = SUITE_SESSION(path, execution, options)
     PROFILED.append(session)
     return session
 

@@ -117,11 +117,14 @@ class Graphs:
                 out.write_bytes(source.read_bytes())
         return out
 
+    @property
+    def half(self) -> bool:
+        return self.kind.startswith("fp16")
+
     def torch_context(self, device: str) -> Any:
         import contextlib
 
-        half = self.kind.startswith("fp16")
-        return torch.autocast(device, dtype=torch.float16) if half else contextlib.nullcontext()
+        return torch.autocast(device, dtype=torch.float16) if self.half else contextlib.nullcontext()
 
 
 def median_ms(fn: Callable[[], object], repeats: int) -> float:
@@ -175,13 +178,14 @@ def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int
 GRAPH_VARIANT: Graphs | None = None      # set by main from --graphs
 
 
-def session(path: Path, execution: Any) -> ort.InferenceSession:
-    """The graph at `path` (converted as --graphs says) on the execution's providers."""
+def session(path: Path, execution: Any, options: ort.SessionOptions | None = None) -> ort.InferenceSession:
+    """The graph at `path` on the execution's providers, converted as --graphs says (decoders stay as they are: they
+    are timed apart, the same for every column)."""
     from t2m.service.engine.bundle import open_session, session_options
 
-    served = GRAPH_VARIANT(path) if GRAPH_VARIANT is not None and path.stem != "decoder" and \
-        not path.stem.endswith("_decoder") else path
-    return open_session(served, session_options(0, 1), execution)
+    decoder = path.stem == "decoder" or path.stem.endswith("_decoder")
+    served = GRAPH_VARIANT(path) if GRAPH_VARIANT is not None and not decoder else path
+    return open_session(served, options or session_options(0, 1), execution)
 
 
 def onnx_gpt(step_path: Path, n_layer: int, n_head: int, head_dim: int, length: bool, dim: int, tokens: int,
@@ -389,8 +393,8 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
     from t2m.service.engine.execution import Execution
 
     providers = ("cuda",) if device == "cuda" else ("cpu",)
-    kind = GRAPH_VARIANT.kind if GRAPH_VARIANT is not None else "shipped"
-    graphs = "" if kind == "shipped" else f" {kind}"
+    variant = GRAPH_VARIANT or Graphs("shipped", Path())
+    graphs = "" if variant.kind == "shipped" else f" {variant.kind}"
     makers: dict[str, Callable[[], Generate]] = {}
     if ort_ok and case.kv_cache:
         makers[f"onnxruntime {device}{graphs}, I/O binding"] = \
@@ -402,14 +406,12 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
     if torch_ok and case.torch is not None:
         def make_torch() -> Generate:
             generate = case.torch(torch.device(device))  # type: ignore[misc]
-            if GRAPH_VARIANT is None or not kind.startswith("fp16"):
-                return generate
 
-            def autocast(batch: int) -> np.ndarray:
-                with GRAPH_VARIANT.torch_context(device):
+            def in_precision(batch: int) -> np.ndarray:
+                with variant.torch_context(device):
                     return generate(batch)
-            return autocast
-        makers[f"PyTorch eager {device}{' fp16 autocast' if kind.startswith('fp16') else ''}"] = make_torch
+            return in_precision
+        makers[f"PyTorch eager {device}{' fp16 autocast' if variant.half else ''}"] = make_torch
     decoder = attempt(failures, f"{case.label} decoder.onnx", lambda: session(case.decoder, Execution(providers)))
     samplers = {method: attempt(failures, f"{case.label} {method}", make) for method, make in makers.items()}
     sync = torch.cuda.synchronize if device == "cuda" and torch_ok else (lambda: None)

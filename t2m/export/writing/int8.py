@@ -31,7 +31,6 @@ DEQUANTIZED_LABEL = "float32-dequantized"
 SCHEMES = ("int8", "int4", "fp16", "float32")
 # schemes that also take int8-dynamic graphs (dequantised first): the GPU copies of the shipped int8 bundles
 FROM_INT8 = ("fp16", "float32")
-FLOAT32 = "float32"
 WHAT = {
     INT8_LABEL: "int8 MatMul/Gemm weights (per channel, 7 bits) and embedding tables, activations quantised on the "
                 "fly (MatMulInteger)",
@@ -53,15 +52,10 @@ def _quantizer(scheme: str) -> tuple[Callable[[Path, Path], Path], str]:
     if scheme == "fp16":
         return convert_graph_fp16, FP16_LABEL
     if scheme == "float32":
-        return _copy_float, DEQUANTIZED_LABEL
+        from t2m.export.writing.dequantize import dequantize_graph
+
+        return dequantize_graph, DEQUANTIZED_LABEL
     raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}")
-
-
-def _copy_float(src: Path, dst: Path) -> Path:
-    """The float32 scheme's graph: an int8-dynamic one dequantised (a float32 graph has nothing to undo)."""
-    from t2m.export.writing.dequantize import dequantize_graph
-
-    return dequantize_graph(src, dst)
 
 
 def _from_int8(quantize: Callable[[Path, Path], Path]) -> Callable[[Path, Path], Path]:
@@ -102,12 +96,13 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     if not graphs:
         raise ValueError(f"{src}: family {manifest.get('family', 'gpt')!r} declares no graphs to quantise")
     done = {name: (manifest.get("quantization") or {}).get(Path(name).stem) for name in graphs}
-    if scheme in FROM_INT8 and all(value == INT8_LABEL for value in done.values()):
-        quantize = _from_int8(quantize) if scheme != "float32" else quantize
-    elif scheme == "float32":
+    from_int8 = scheme in FROM_INT8 and all(value == INT8_LABEL for value in done.values())
+    if from_int8 and scheme == "fp16":
+        quantize = _from_int8(quantize)      # the float32 scheme's quantiser is the dequantiser itself
+    elif scheme == "float32" and not from_int8:
         raise ValueError(f"{src}: the float32 scheme dequantises int8-dynamic graphs; this bundle's are "
-                         f"{', '.join(f'{name}: {value or FLOAT32}' for name, value in done.items())}")
-    elif any(done.values()):
+                         f"{', '.join(f'{name}: {value or scheme}' for name, value in done.items())}")
+    elif any(done.values()) and not from_int8:
         name, already = next((name, value) for name, value in done.items() if value)
         raise ValueError(f"{src}: {name} is already {already}")
     if parity and out.resolve() == src.resolve():
@@ -138,7 +133,7 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     card = out / "MODEL_CARD.md"
     if card.is_file():
         text = _quantisation_row(card.read_text(encoding="utf-8"), written)
-        source = "the int8 bundle" if scheme in FROM_INT8 and all(done.values()) else "the float32 bundle"
+        source = "the int8 bundle" if from_int8 else "the float32 bundle"
         card.write_text(f"{text.rstrip()}\n\n{card_section(label, report.as_dict(), sizes, source)}",
                         encoding="utf-8")
         written = write_bundle(out, {name: out / name for name in names}, written)

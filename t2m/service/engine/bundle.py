@@ -122,7 +122,7 @@ def _warn_int8_on_gpu(raw: dict, path: Path, execution: Execution) -> None:
     """int8-dynamic step graphs on a GPU provider: their quantised MatMuls have no CUDA kernel and go to the CPU and
     back (the default model on an H100: 2.9x fewer motions per second than its float32 copy at batch 256), so say
     which copy to serve instead; the text encoder runs once per sentence and does not matter."""
-    if not any(name != "cpu" for name in execution.providers):
+    if not execution.on_gpu:
         return
     int8 = sorted(graph for graph, label in (raw.get("quantization") or {}).items()
                   if label == "int8-dynamic" and graph != "text_encoder")

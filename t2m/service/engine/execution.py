@@ -72,10 +72,15 @@ class Execution:
         return ort_providers(self.providers)
 
     @property
+    def on_gpu(self) -> bool:
+        """Whether a provider other than the CPU's is asked for."""
+        return any(name != "cpu" for name in self.providers)
+
+    @property
     def binds(self) -> bool:
         """Bound step caches: on with a GPU provider (auto), or forced on/off (tests force it on CPU)."""
         if self.io_binding == "auto":
-            return any(name != "cpu" for name in self.providers)
+            return self.on_gpu
         return self.io_binding == "on"
 
     def check_session(self, session: ort.InferenceSession, file: str) -> None:
