@@ -25,12 +25,15 @@ __all__ = [
     "COMMON_OPTIONAL_FIELDS",
     "FORMAT_VERSION",
     "GUIDANCE",
+    "INT8_LABEL",
+    "INT8_LABELS",
     "INTEGER_ABOVE_1",
     "LENGTH_GRAPH",
     "MANIFEST_NAME",
     "OPTIONAL_FILES",
     "POSITIVE",
     "QUANTIZATION",
+    "ROW_INT8_LABEL",
     "CaptionIndexInfo",
     "Manifest",
     "check_block_size",
@@ -95,6 +98,9 @@ BOOL: FieldRule = (is_bool, "true or false")
 GUIDANCE: FieldRule = (lambda v: is_number(v) and v >= 0, "a number >= 0")
 INTEGER_ABOVE_1: FieldRule = (lambda v: is_int(v) and v > 1, "an integer > 1")
 QUANTIZATION: FieldRule = (is_optional_str, "null or a string such as 'int8-dynamic'")
+INT8_LABEL = "int8-dynamic"              # activations quantised per tensor (text encoders)
+ROW_INT8_LABEL = "int8-dynamic-rows"     # per row (token graphs: a row's result never depends on its batch)
+INT8_LABELS = (INT8_LABEL, ROW_INT8_LABEL)
 # field path -> (check, what it must be); every field is required, for every family
 COMMON_FIELDS: dict[str, FieldRule] = {
     "format_version": (lambda v: v == FORMAT_VERSION, f"the integer {FORMAT_VERSION}"),

@@ -19,6 +19,7 @@ service wraps temporal_step.onnx / residual_step.onnx, the PyTorch reference wra
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -27,7 +28,8 @@ from t2m.decoding import lockstep
 from t2m.decoding.lockstep import SamplingJob
 from t2m.decoding.tokens import draw_stops
 
-__all__ = ["HiFiGPTCohort", "ResidualGptStep", "SamplingJob", "TemporalStep", "depth_loop", "sample_code_rows"]
+__all__ = ["HiFiGPTCohort", "ResidualGptStep", "SamplingJob", "TemporalStep", "advance_together", "depth_loop",
+           "sample_code_rows"]
 
 
 class TemporalStep(Protocol):
@@ -67,6 +69,17 @@ class HiFiGPTCohort(lockstep.Cohort):
 
     def advance(self, on_step: Callable[[int], None] | None = None) -> None:
         """The stop decisions of this position, then the code rows of the segments that go on."""
+        advance_together([self], on_step)
+
+    @classmethod
+    def advance_together(cls, cohorts: Sequence[lockstep.Cohort], on_step: Callable[[int], None] | None = None) -> None:
+        mine = [cohort for cohort in cohorts if isinstance(cohort, HiFiGPTCohort)]
+        if len(mine) != len(cohorts):
+            raise TypeError("T2M-HiFiGPT cohorts step together only with T2M-HiFiGPT cohorts")
+        advance_together(mine, on_step)
+
+    def _stops(self, on_step: Callable[[int], None] | None) -> _DepthWork:
+        """The temporal call of this position and the stop draws: what the residual GPT has to do next."""
         batch, depth = self.batch, self.depth
         codes_in = np.stack([(batch.segments[s].tokens or [np.zeros(depth, np.int64)])[-1] for s in batch.owner])
         context, stop, batch.past = self.temporal(batch.cond, codes_in, self.position, batch.length, batch.past)
@@ -83,15 +96,54 @@ class HiFiGPTCohort(lockstep.Cohort):
                     batch.segments[s].done = bool(stopped)
             live.append((job, active))
         context = context[lockstep.drop_finished(batch, self.temporal)]
-        if len(batch.owner):
-            going = [(job, kept) for job, active in live if (kept := [s for s in active if not batch.segments[s].done])]
-            for s, row in depth_loop(self.residual, context, going, batch.owner, depth, on_step).items():
+        going = [(job, kept) for job, active in live if (kept := [s for s in active if not batch.segments[s].done])]
+        return _DepthWork(self, context, going, batch.owner.copy(), live)
+
+    def _codes(self, work: _DepthWork, chosen: dict[int, np.ndarray]) -> None:
+        """This position's code rows (segment -> R codes) appended; finished rows leave; progress reported."""
+        batch = self.batch
+        if len(work.owner):
+            for s, row in chosen.items():
                 batch.segments[s].tokens.append(row)
                 batch.segments[s].reached(self.max_tokens)
             lockstep.drop_finished(batch, self.temporal)
-        for job, active in live:
+        for job, active in work.live:
             lockstep.report_progress(batch, job, active)
         self.position += 1
+
+
+@dataclass
+class _DepthWork:
+    """One cohort's share of a position's residual GPT calls: its going rows' contexts, in its row order."""
+
+    cohort: HiFiGPTCohort
+    context: np.ndarray
+    going: list[tuple[SamplingJob, list[int]]]
+    owner: np.ndarray
+    live: list[tuple[SamplingJob, list[int]]]
+
+
+def advance_together(cohorts: Sequence[HiFiGPTCohort], on_step: Callable[[int], None] | None = None) -> None:
+    """One time step of each cohort: their temporal calls one by one (each has its own position and cache length),
+    then the residual GPT's R depth calls once for all their going rows (its cache is fresh at every time step, so
+    rows of any position can share it). Each job draws from its own generator in the same order as alone (its stops,
+    then its depths), and every row's logits are its own (the step graphs are row-independent), so a cohort's codes
+    are the same stepped alone or together."""
+    works = [cohort._stops(on_step) for cohort in cohorts]
+    shared = [work for work in works if len(work.owner)]
+    chosen: dict[int, dict[int, np.ndarray]] = {id(work): {} for work in works}
+    if shared:   # segment ids made unique across cohorts by an offset each
+        offsets = np.cumsum([0] + [len(work.cohort.batch.segments) for work in shared[:-1]]).tolist()
+        context = np.concatenate([work.context for work in shared])
+        owner = np.concatenate([work.owner + offset for work, offset in zip(shared, offsets)])
+        going = [(job, [s + offset for s in segments]) for work, offset in zip(shared, offsets)
+                 for job, segments in work.going]
+        codes = depth_loop(shared[0].cohort.residual, context, going, owner, shared[0].cohort.depth, on_step)
+        for work, offset in zip(shared, offsets):
+            end = offset + len(work.cohort.batch.segments)
+            chosen[id(work)] = {s - offset: row for s, row in codes.items() if offset <= s < end}
+    for cohort, work in zip(cohorts, works):
+        cohort._codes(work, chosen[id(work)])
 
 
 def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Sequence[SamplingJob],

@@ -266,6 +266,13 @@ class Cohort:
         """One time step for every live row (the family's network calls); `on_step(rows)` after each call."""
         raise NotImplementedError
 
+    @classmethod
+    def advance_together(cls, cohorts: Sequence[Cohort], on_step: Callable[[int], None] | None = None) -> None:
+        """One time step of each of `cohorts` (of this family), the same as each `advance`d alone; a family whose
+        calls rows of different positions can share overrides it (T2M-HiFiGPT's residual GPT)."""
+        for cohort in cohorts:
+            cohort.advance(on_step)
+
     def run(self, on_step: Callable[[int], None] | None = None) -> list[list[np.ndarray] | None]:
         """Step to the end; per job its segments' arrays, or None for a job cancelled on the way."""
         while not self.done:

@@ -2,9 +2,10 @@
 
 tests/data/gpt_model_outputs.npz: the 1-layer GPT (t2m/bundles/gpt, the default up to 0.4.0), recorded before the
 0.4.0 restructuring (package moved under t2m/, one bundle contract, sampler split);
-tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded again for its 0.3.0 (a new decoder on the same
-codes: the same spans, other joints);
-tests/data/masked_model_outputs.npz: the masked-family model, recorded before the family seam (issue 24) was built.
+tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded again for its 0.3.1 (0.3.0's weights, int8
+activations quantised per row: other codes);
+tests/data/masked_model_outputs.npz: the masked-family model, recorded again for its 0.2.1 (activations per row, as
+the default's).
 They hold the decoded motion, before the engine fits each segment to round(duration * fps) frames (issue 25: an
 engine with exact_durations=False answers it), so the recordings pin the model's codes and decode; the test fits them
 with the engine's own timeline. Re-record only when that model itself changes:

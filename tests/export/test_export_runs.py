@@ -21,7 +21,7 @@ def test_export_from_runs_writes_the_contract_manifest(exported_runs):
                                         "normalize": True, "null_condition": "zeros"}
     assert manifest["training_data"]["license"] == "CC BY-NC 4.0" and manifest["license"] == "CC BY-NC 4.0"
     assert "templated from labels" in manifest["training_data"]["attribution"]
-    assert manifest["quantization"] == {"text_encoder": None, "gpt_step": "int8-dynamic"}
+    assert manifest["quantization"] == {"text_encoder": None, "gpt_step": "int8-dynamic-rows"}
     printed = json.loads(stdout[: stdout.rindex("}") + 1])
     parity = printed["parity"]
     assert parity["gpt_step"]["codes_identical"] and parity["gpt_step"]["max_abs_logit_diff"] <= 1e-4

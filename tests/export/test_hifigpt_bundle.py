@@ -138,8 +138,8 @@ def test_int8_step_graphs_are_measured_and_declared(runs, tmp_path, tiny_text, c
     assert main(["export", "--family", "hifigpt", "--vq", str(runs["vq"]), "--hifigpt", str(runs["hifigpt"]),
                  "--int8", "temporal,residual", "-o", str(out)]) == 0
     manifest = verify_bundle(out)
-    assert manifest["quantization"] == {"text_encoder": None, "temporal_step": "int8-dynamic",
-                                        "residual_step": "int8-dynamic"}
+    assert manifest["quantization"] == {"text_encoder": None, "temporal_step": "int8-dynamic-rows",
+                                        "residual_step": "int8-dynamic-rows"}
     report = json.loads(capsys.readouterr().out.split("\nbundle ")[0])["int8"]
     for key in ("temporal_step", "residual_step"):
         assert report[key]["int8_bytes"] < report[key]["fp32_bytes"]

@@ -48,7 +48,7 @@ SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}
 SMALL_VQ = {"width": 64, "code_dim": 32, "nb_code": 64, "down_t": 2, "depth": 3}
 SMALL_GPT = {"codebook": 64, "embed": 128, "layers": (2, 2), "block": 51, "text_dim": 512}
 OPS = {"int8": "MatMulInteger", "int4": "MatMulNBits"}
-LABELS = {"int8": "int8-dynamic", "int4": "int4-matmulnbits", "fp16": "fp16"}
+LABELS = {"int8": "int8-dynamic-rows", "int4": "int4-matmulnbits", "fp16": "fp16"}
 # max |logit diff| / max(1, max |float32 logit|), per scheme; measured at the small sizes: int8 0.026-0.042, int4
 # 0.16-0.26, fp16 0.0007-0.0013; the control (one layer's int8 weights doubled): 1.3
 LOGIT_BOUND = {"int8": 0.1, "int4": 0.5, "fp16": 0.01}
@@ -163,7 +163,7 @@ def test_import_quantize_int8_quantises_every_token_graph_and_measures_it(import
                 "mogents": {"masked.onnx", "residual.onnx", "masked_aux.onnx", "residual_aux.onnx"}}[kind]
     assert set(quantized_graphs(manifest)) == expected
     assert manifest["quantization"]["text_encoder"] is None   # CLIP stays float32 (see the card)
-    assert RECOMMENDATION not in stdout and f"{sorted(expected)[0]} int8-dynamic" in stdout
+    assert RECOMMENDATION not in stdout and f"{sorted(expected)[0]} int8-dynamic-rows" in stdout
     check_parity(printed_json(stdout)["quantization"], "int8")
     float32 = json.loads((imports[kind]["float32"][0] / "manifest.json").read_text())
     assert {k: v for k, v in manifest["files"].items() if k not in expected and k != "MODEL_CARD.md"} == \
@@ -216,7 +216,7 @@ def test_refusals_are_one_line(imports, tmp_path, capsys):
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "notes.txt").write_text("not a bundle")
     cases = [
-        (["quantize", str(gpt["int8"][0]), "-o", str(tmp_path / "twice")], "gpt_step.onnx is already int8-dynamic"),
+        (["quantize", str(gpt["int8"][0]), "-o", str(tmp_path / "twice")], "gpt_step.onnx is already int8-dynamic-rows"),
         (["quantize", str(imports["mogents"]["int8"][0]), "-o", str(tmp_path / "m")], "masked.onnx is already"),
         (["quantize", str(gpt["float32"][0]), "-o", str(tmp_path / "q"), "--parity-runs", "-1"],
          "--parity-runs must be >= 0"),

@@ -226,7 +226,7 @@ def test_int8_text_encoder_for_the_masked_family(masked_runs, tmp_path, tiny_tex
                  "-o", str(out)])
     assert code == 0
     manifest = verify_bundle(out)
-    assert manifest["quantization"] == {"text_encoder": "int8-dynamic", "residual": "int8-dynamic"}
+    assert manifest["quantization"] == {"text_encoder": "int8-dynamic", "residual": "int8-dynamic-rows"}
     card = (out / "MODEL_CARD.md").read_text()
     assert "- text encoder: cosine to float32 features min" in card and "tokens identical True" in card
     assert "- residual transformer: max |logit diff|" in card and "- float32: masked, decoder, length" in card

@@ -88,7 +88,7 @@ def test_int8_bundle_copy_is_verified_and_served_like_its_float32_original(tmp_p
 
     src = build_random_bundle(tmp_path / "fp32", codebook_size=16, embed=32, n_head=2, n_layer=2)
     manifest = quantize_bundle_gpt(src, tmp_path / "int8", version="0.0.1")
-    assert manifest["quantization"]["gpt_step"] == "int8-dynamic" and manifest["version"] == "0.0.1"
+    assert manifest["quantization"]["gpt_step"] == "int8-dynamic-rows" and manifest["version"] == "0.0.1"
     assert "MatMulInteger" in _op_types(tmp_path / "int8" / "gpt_step.onnx")
     original = json.loads((src / "manifest.json").read_text())
     changed = {name for name in original["files"] if original["files"][name] != manifest["files"][name]}
@@ -98,7 +98,7 @@ def test_int8_bundle_copy_is_verified_and_served_like_its_float32_original(tmp_p
     request = GenerationRequest(segments=[SegmentRequest("a person walks", 1.0)], seed=3, guidance=3.0)
     motion = OnnxEngine.load(tmp_path / "int8", intra_op_threads=1).generate(request)
     assert motion.joints.shape[0] == 20 and np.isfinite(motion.joints).all()
-    with pytest.raises(ValueError, match="already int8-dynamic"):
+    with pytest.raises(ValueError, match="already int8-dynamic-rows"):
         quantize_bundle_gpt(tmp_path / "int8", tmp_path / "twice")
 
 
@@ -117,10 +117,11 @@ def test_int8_gpt_step_computes_the_same_on_cpus_without_vnni(tmp_path):
     def logits(session) -> np.ndarray:
         return np.stack(ort_greedy_rollout(session, cond, length, shape, steps, c.end_id, 3.0).logits)
 
-    ours = quantize_graph(fp32, tmp_path / "int8_7bit.onnx")
-    exact, saturated = logits(ReferenceSession(ours, False)), logits(ReferenceSession(ours, True))
-    np.testing.assert_array_equal(exact, saturated)
-    np.testing.assert_allclose(exact, logits(ort_session(ours, threads=1)), atol=1e-4)  # the emulation is onnxruntime's
+    for per_row in (False, True):    # activations per tensor (text encoders) and per row (the token graphs)
+        ours = quantize_graph(fp32, tmp_path / f"int8_7bit_{per_row}.onnx", per_row=per_row)
+        exact, saturated = logits(ReferenceSession(ours, False)), logits(ReferenceSession(ours, True))
+        np.testing.assert_array_equal(exact, saturated)
+        np.testing.assert_allclose(exact, logits(ort_session(ours, threads=1)), atol=1e-4)  # the emulation is ort's
     full = quantize_graph(fp32, tmp_path / "int8_8bit.onnx", reduce_range=False)
     assert np.abs(logits(ReferenceSession(full, True)) - logits(ReferenceSession(full, False))).max() > 0.02
 

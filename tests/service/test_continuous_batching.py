@@ -237,3 +237,24 @@ def test_a_boundary_ends_early_for_a_waiting_short_request_but_never_holds_a_coh
         finished.update({id(done.request): done for done in session.advance_codes()})
     motion = engine.finish(first, finished[id(first)].codes, finished[id(first)].notes)
     assert _same_motion(motion, alone)
+
+
+def test_hifigpt_cohorts_of_different_ages_share_the_residual_calls(hifigpt_bundle):
+    """T2M-HiFiGPT: at a boundary every stepping cohort makes its own temporal call (its own position), then the
+    residual GPT's R calls run once for all their rows; the motions are still the ones alone."""
+    from t2m.service.engine.engine import OnnxEngine
+
+    engine = OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
+    alone = {"long": engine.generate(_long()), "short": engine.generate(_short())}
+    session = engine.continuous(EveryCohort())
+    long, short = _long(), _short()
+    session.admit([long])
+    session.advance()
+    session.admit([short])
+    calls: list[int] = []
+    session.advance_codes(on_step=calls.append)
+    rows = [running.cohort.rows for running in session.running]     # nothing finished at this boundary
+    assert len(rows) == 2 and sorted(calls[:2]) == sorted(rows)     # two temporal calls, one per cohort
+    assert calls[2:] == [sum(rows)] * engine.codes.temporal.depth     # then R residual calls for all rows
+    finished = {id(request): result for request, result in _run_until_idle(session)}
+    assert _same_motion(finished[id(long)], alone["long"]) and _same_motion(finished[id(short)], alone["short"])

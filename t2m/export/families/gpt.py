@@ -22,7 +22,7 @@ import numpy as np
 from t2m.export.graphs.decoder import export_decoder
 from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.gpt import export_gpt_step
-from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
+from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, ROW_INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.runs import normalisation, run_record, run_training_data
 from t2m.export.kit.text_sources import TextSource, clip_text_source, minilm_text_source
 from t2m.export.writing.bundle import check_out_dir, motion_fields, prepare_out_dir, render_model_card, write_bundle
@@ -194,8 +194,8 @@ def _export_into(
         manifest["quantization"]["text_encoder"] = INT8_LABEL
     if int8 in ("all", "gpt"):
         checks.int8["gpt_step"] = quantize_in_place(
-            out_dir / "gpt_step.onnx", lambda fp32, q: asdict(gpt_int8_report(fp32, q, manifest)))
-        manifest["quantization"]["gpt_step"] = INT8_LABEL
+            out_dir / "gpt_step.onnx", lambda fp32, q: asdict(gpt_int8_report(fp32, q, manifest)), per_row=True)
+        manifest["quantization"]["gpt_step"] = ROW_INT8_LABEL
     card_notes = "\n\n".join(part for part in (checks.model_card_section(), notes.strip()) if part)
     (out_dir / "MODEL_CARD.md").write_text(render_model_card(manifest, card_notes), encoding="utf-8")
     files = {file: out_dir / file for file in

@@ -20,7 +20,7 @@ import numpy as np
 from t2m.export.graphs.decoder import export_decoder
 from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step, rollout_parity
-from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
+from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, ROW_INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.text_sources import TextSource
 from t2m.export.writing.bundle import (
     check_out_dir,
@@ -204,9 +204,10 @@ def _quantize(out_dir: Path, int8: frozenset[str], model: HiFiGPT, manifest: dic
             lambda fp32, q: asdict(text_int8_report(fp32, q, out_dir / "tokenizer.json")))
     for key in ("temporal", "residual"):
         if key in int8:
-            checks.int8[INT8_GRAPHS[key]] = quantize_in_place(out_dir / f"{INT8_GRAPHS[key]}.onnx", sizes)
+            checks.int8[INT8_GRAPHS[key]] = quantize_in_place(out_dir / f"{INT8_GRAPHS[key]}.onnx", sizes,
+                                                              per_row=True)
     for key in int8:
-        manifest["quantization"][INT8_GRAPHS[key]] = INT8_LABEL
+        manifest["quantization"][INT8_GRAPHS[key]] = INT8_LABEL if key == "text" else ROW_INT8_LABEL
     if {"temporal", "residual"} & int8:
         rollout = asdict(rollout_parity(model, out_dir / "temporal_step.onnx", out_dir / "residual_step.onnx",
                                         guidance=guidance))

@@ -31,7 +31,7 @@ from t2m.export.graphs.masked import (
     transformer_parity,
     unit_conditions,
 )
-from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, quantize_in_place, text_int8_line
+from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, ROW_INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.text_sources import TextSource
 from t2m.export.writing.bundle import (
     check_out_dir,
@@ -368,8 +368,8 @@ def _quantize(out_dir: Path, int8: frozenset[str], masked: MaskedTransformer, re
     models: dict[str, MaskedTransformer | ResidualTransformer | None] = {"masked": masked, "residual": residual}
     for key, model in models.items():
         if key in int8 and model is not None:
-            checks.int8[key] = quantize_in_place(out_dir / f"{key}.onnx", _token_graph_report(model))
-            manifest["quantization"][key] = INT8_LABEL
+            checks.int8[key] = quantize_in_place(out_dir / f"{key}.onnx", _token_graph_report(model), per_row=True)
+            manifest["quantization"][key] = ROW_INT8_LABEL
     if {"masked", "residual"} & int8:
         rows = masked.config.max_tokens
         checks.int8["decode"] = asdict(decode_parity(

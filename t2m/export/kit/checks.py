@@ -7,26 +7,29 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["GROSS_PARITY_ERROR", "INT8_LABEL", "quantize_in_place", "text_int8_line"]
+__all__ = ["GROSS_PARITY_ERROR", "INT8_LABEL", "INT8_LABELS", "ROW_INT8_LABEL", "quantize_in_place", "text_int8_line"]
+
+from t2m.bundle.manifest import INT8_LABEL, INT8_LABELS, ROW_INT8_LABEL
 
 log = logging.getLogger(__name__)
 
-INT8_LABEL = "int8-dynamic"
 
 
 GROSS_PARITY_ERROR = 1e-3
 
 
-def quantize_in_place(graph: Path, report: Callable[[Path, Path], dict[str, Any]]) -> dict[str, Any]:
-    """Replace ``graph`` by its int8 dynamic quantisation; ``report(fp32, int8)`` measures the price while the
-    float32 copy still exists (it is removed afterwards)."""
+def quantize_in_place(graph: Path, report: Callable[[Path, Path], dict[str, Any]], *,
+                      per_row: bool = False) -> dict[str, Any]:
+    """Replace ``graph`` by its int8 dynamic quantisation (``per_row``: activations per row, the token graphs' rule:
+    t2m/export/writing/row_quantize.py); ``report(fp32, int8)`` measures the price while the float32 copy still
+    exists (it is removed afterwards)."""
     from t2m.export.writing.quantize import quantize_graph
 
     log.info("quantising %s to int8", graph.name)
     fp32_copy = graph.with_name(f".{graph.name}.fp32")
     graph.replace(fp32_copy)
     try:
-        quantize_graph(fp32_copy, graph)
+        quantize_graph(fp32_copy, graph, per_row=per_row)
         return report(fp32_copy, graph)
     finally:
         fp32_copy.unlink(missing_ok=True)

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from t2m.export.writing.row_quantize import ROW_ONE, row_quantized_source
+
 __all__ = ["dequantize_graph", "is_int8_dynamic"]
 
 
@@ -72,7 +74,13 @@ def dequantize_graph(src: str | Path, dst: str | Path) -> Path:
             cast = only_consumer(node.output[0], "Cast", node.name)
             rescale = only_consumer(cast.output[0], "Mul", cast.name)
             scales = producer[next(name for name in rescale.input if name != cast.output[0])]
-            if quantize is not None and quantize.op_type == "DynamicQuantizeLinear":
+            source = row_quantized_source(x_q)
+            if source is not None:      # per row (row_quantize.py): the row scale's Mul after the rescale goes too
+                x, x_scale = source, ROW_ONE
+                rows = only_consumer(rescale.output[0], "Mul", rescale.name)
+                drop.add(id(rescale))
+                rescale = rows
+            elif quantize is not None and quantize.op_type == "DynamicQuantizeLinear":
                 x, x_scale = quantize.input[0], quantize.output[1]
             elif quantize is not None and quantize.op_type == "Gather" and quantize.input[0] in inits:
                 # an int8 embedding table read straight into the MatMul: its rows dequantised by the table's own

@@ -1,15 +1,17 @@
 """A copy of a bundle with its token graphs quantised, for every family (the family seam's `quantizable_graphs`):
-int8 (dynamic, 7-bit weights: MatMulInteger; the shipped rule), int4 (MatMulNBits weights, int8 compute; opt-in, for
-release-size models bound by memory bandwidth) or fp16 (float16 weights and compute, float32 inputs and outputs; for
-GPUs). The manifest's `quantization.<graph>` entries and files table are rewritten by write_bundle, so the copy is
-verified like any exported bundle, and the copy's model card says what was quantised and what it cost, measured
-against the float32 original as served (t2m.export.writing.bundle_parity).
+int8 (dynamic, 7-bit weights: MatMulInteger, activations quantised per row; the shipped rule; an int8 bundle whose
+activations are quantised per tensor is rewritten per row: row_quantize.py), int4 (MatMulNBits weights, int8
+compute; opt-in, for release-size models bound by memory bandwidth) or fp16 (float16 weights and compute, float32
+inputs and outputs; for GPUs). The manifest's `quantization.<graph>` entries and files table are rewritten by
+write_bundle, so the copy is verified like any exported bundle, and the copy's model card says what was quantised
+and what it cost, measured against the float32 original as served (t2m.export.writing.bundle_parity).
 
 Used to measure a quantised bundle as served (`t2m eval --bundle`, the probes) before shipping it, to ship it, by
 `t2m quantize` for any family's bundle (an imported release included) and by `t2m import ... --quantize`.
 """
 from __future__ import annotations
 
+import functools
 import json
 import re
 import shutil
@@ -19,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from t2m.bundle import MANIFEST_NAME
-from t2m.export.kit.checks import INT8_LABEL
+from t2m.export.kit.checks import INT8_LABEL, INT8_LABELS, ROW_INT8_LABEL
 from t2m.export.writing.bundle import check_out_dir, prepare_out_dir, write_bundle
 
 __all__ = ["DEQUANTIZED_LABEL", "FP16_LABEL", "INT4_LABEL", "SCHEMES", "quantize_bundle", "quantize_bundle_gpt",
@@ -29,11 +31,14 @@ INT4_LABEL = "int4-matmulnbits"
 FP16_LABEL = "fp16"
 DEQUANTIZED_LABEL = "float32-dequantized"
 SCHEMES = ("int8", "int4", "fp16", "float32")
-# schemes that also take int8-dynamic graphs (dequantised first): the GPU copies of the shipped int8 bundles
-FROM_INT8 = ("fp16", "float32")
+# schemes that also take int8-dynamic graphs: the GPU copies of the shipped int8 bundles (dequantised first) and
+# int8 itself (an int8 bundle quantised per tensor rewritten per row)
+FROM_INT8 = ("fp16", "float32", "int8")
 WHAT = {
     INT8_LABEL: "int8 MatMul/Gemm weights (per channel, 7 bits) and embedding tables, activations quantised on the "
                 "fly (MatMulInteger)",
+    ROW_INT8_LABEL: "int8 MatMul/Gemm weights (per channel, 7 bits) and embedding tables, activations quantised on "
+                    "the fly one row at a time (MatMulInteger; a request's result never depends on its batch)",
     INT4_LABEL: "int4 MatMul weights in blocks of 128 with int8 compute (MatMulNBits)",
     FP16_LABEL: "float16 weights and compute, float32 inputs and outputs (for GPUs; op types onnxruntime's "
                 "converter blocks stay float32)",
@@ -46,7 +51,7 @@ def _quantizer(scheme: str) -> tuple[Callable[[Path, Path], Path], str]:
     from t2m.export.writing.quantize import convert_graph_fp16, quantize_graph, quantize_graph_int4
 
     if scheme == "int8":
-        return quantize_graph, INT8_LABEL
+        return functools.partial(quantize_graph, per_row=True), ROW_INT8_LABEL
     if scheme == "int4":
         return quantize_graph_int4, INT4_LABEL
     if scheme == "fp16":
@@ -96,9 +101,14 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     if not graphs:
         raise ValueError(f"{src}: family {manifest.get('family', 'gpt')!r} declares no graphs to quantise")
     done = {name: (manifest.get("quantization") or {}).get(Path(name).stem) for name in graphs}
-    from_int8 = scheme in FROM_INT8 and all(value == INT8_LABEL for value in done.values())
+    from_int8 = scheme in FROM_INT8 and all(value in ((INT8_LABEL,) if scheme == "int8" else INT8_LABELS)
+                                            for value in done.values())
     if from_int8 and scheme == "fp16":
         quantize = _from_int8(quantize)      # the float32 scheme's quantiser is the dequantiser itself
+    elif from_int8 and scheme == "int8":
+        from t2m.export.writing.row_quantize import row_quantize_graph
+
+        quantize = row_quantize_graph        # the same weights, activations per row
     elif scheme == "float32" and not from_int8:
         raise ValueError(f"{src}: the float32 scheme dequantises int8-dynamic graphs; this bundle's are "
                          f"{', '.join(f'{name}: {value or scheme}' for name, value in done.items())}")
@@ -153,9 +163,9 @@ def card_section(label: str, report: dict[str, Any], sizes: dict[str, tuple[int,
                  source: str = "the float32 bundle") -> str:
     """The model card's section on a quantised copy: what was quantised, how, and its measured parity."""
     lines = [f"## Quantisation: {label} (vs {source})", "",
-             f"Quantised graphs: {', '.join(f'`{name}`' for name in sizes)}: {WHAT[label]}. The text encoder, the "
-             "decoder and any length graph stay float32 (run once per request, not per step; the text features "
-             "condition every token).", "",
+             f"Quantised graphs: {', '.join(f'`{name}`' for name in sizes)}: {WHAT[label]}. The other graphs (text "
+             f"encoder, decoder, any length graph) are {source}'s, as the manifest's `quantization` says (they run "
+             "once per request, not per step).", "",
              f"Measured as served, on {report['runs']} seeded one-sentence requests of {report['seconds']:g} s at the "
              f"bundle's default settings (sampling as served): {report['agreeing']} of {report['tokens']} tokens the "
              f"same as {source}'s ({100 * report['agreement']:.1f}%; once one draw differs, the rest of "

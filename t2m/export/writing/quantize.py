@@ -40,7 +40,7 @@ def _quiet_logging(*names: str) -> Iterator[None]:
             logger.setLevel(level)
 
 
-def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) -> Path:
+def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True, per_row: bool = False) -> Path:
     """Write an int8 dynamically quantised copy of ``src`` to ``dst`` (``dst`` may equal ``src``).
 
     ``reduce_range`` keeps weights in 7 bits. On CPUs without VNNI, onnxruntime multiplies uint8 activations by int8
@@ -48,6 +48,9 @@ def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) 
     small GPT's logits 0.11 off (a CI machine saw 0.13), against 0.005 with VNNI. With 7-bit weights no sum can
     saturate (2 x 255 x 64 < 32767): the integer results are the same on every x86 CPU and what the export measured is
     what the service computes.
+
+    ``per_row`` quantises each activation row on its own instead of the whole tensor (row_quantize.py): the rule for
+    graphs whose rows are different requests (the token graphs), so that batching never changes a request.
     """
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
@@ -59,6 +62,10 @@ def quantize_graph(src: str | Path, dst: str | Path, reduce_range: bool = True) 
         with _quiet_logging(""):  # quantize_dynamic logs a pre-processing hint on the root logger at WARNING
             quantize_dynamic(src, tmp, op_types_to_quantize=QUANTIZED_OPS, weight_type=QuantType.QInt8,
                              per_channel=True, reduce_range=reduce_range, extra_options={"MatMulConstBOnly": True})
+        if per_row:
+            from t2m.export.writing.row_quantize import row_quantize_graph
+
+            row_quantize_graph(tmp, tmp)
         tmp.chmod(0o644)  # mkstemp makes 0600 files; bundle files are world-readable like the others
         tmp.replace(dst)
     finally:

@@ -29,6 +29,7 @@ from t2m.bundle import (
     read_manifest_dict,
     required_files,
 )
+from t2m.bundle.manifest import INT8_LABELS
 from t2m.service.engine.execution import Execution, check_available
 
 __all__ = ["Bundle", "BundleError", "Execution", "Manifest", "load_bundle", "open_session", "session_options"]
@@ -119,15 +120,16 @@ def _load_array(path: Path, manifest: Manifest) -> np.ndarray:
 
 
 def _warn_int8_on_gpu(raw: dict, path: Path, execution: Execution) -> None:
-    """int8-dynamic step graphs on a GPU provider: their quantised MatMuls have no CUDA kernel and go to the CPU and
-    back (the default model on an H100: 2.9x fewer motions per second than its float32 copy at batch 256), so say
-    which copy to serve instead; the text encoder runs once per sentence and does not matter."""
+    """int8 step graphs on a GPU provider: their activation quantisation has no CUDA kernel and goes to the CPU and
+    back (the default model 0.3.0 on an H100: 2.9x fewer motions per second than its float32 copy at batch 256;
+    measured with activations per tensor, not yet per row), so say which copy to serve instead; the text encoder runs
+    once per sentence and does not matter."""
     if not execution.on_gpu:
         return
     int8 = sorted(graph for graph, label in (raw.get("quantization") or {}).items()
-                  if label == "int8-dynamic" and graph != "text_encoder")
+                  if label in INT8_LABELS and graph != "text_encoder")
     if int8:
-        log.warning("%s: %s are int8-dynamic, slow on %s (no DynamicQuantizeLinear kernel there); serve a float copy: "
+        log.warning("%s: %s are int8, slow on %s (their quantised MatMuls run on the CPU); serve a float copy: "
                     "t2m quantize %s -o DIR --scheme float32 (or fp16)", path, ", ".join(int8),
                     ",".join(execution.providers), path)
 

@@ -5,12 +5,14 @@ The step graphs (gpt_step.onnx, temporal_step.onnx) take one `position` for all 
 one length with no attention mask, so rows at different positions cannot share a call without changing their
 logits. What the graphs allow exactly: the requests admitted at one boundary form a cohort (t2m.decoding.lockstep.
 Cohort: GptCohort, HiFiGPTCohort) whose rows step together; cohorts of different ages run side by side, one call
-each (T2M-HiFiGPT: 1 + R) per step boundary, oldest first; which of them step at a boundary is the session's
-StepOrder's choice (engine/step_order.py: the shortest work first by default). Requests admitted while the newest
-cohort has not stepped yet join it (nothing was computed for it, so it is the same as starting together). A request
-is decoded and returned the step its last segment finishes, whatever is still running beside it. Its codes come
-from its own seeded generator and its own rows' logits, so they are the same alone, in a run-to-completion batch,
-joined mid-run, or in any step order.
+each per step boundary (T2M-HiFiGPT: a temporal call each, then the residual GPT's R calls once for the rows of all
+of them: that cache is fresh at every time step, so rows of any position share it); which of them step at a
+boundary is the session's StepOrder's choice (engine/step_order.py: the shortest work first by default). Requests
+admitted while the newest cohort has not stepped yet join it (nothing was computed for it, so it is the same as
+starting together). A request is decoded and returned the step its last segment finishes, whatever is still running
+beside it. Its codes come from its own seeded generator and its own rows' logits (int8 graphs quantise activations
+per row: t2m/export/writing/row_quantize.py), so they are the same alone, in a run-to-completion batch, joined
+mid-run, in any step order, or sharing residual calls with other cohorts.
 """
 from __future__ import annotations
 
@@ -122,20 +124,25 @@ class RunningCohorts:
     def advance_codes(self, on_step: Callable[[int], None] | None = None,
                       interrupt: Callable[[int], bool] | None = None) -> list[Sampled]:
         """One step of each cohort the order chooses, smallest first; the requests whose codes are done, not yet
-        decoded (the caller decodes them, e.g. on another thread). `interrupt(size)` is asked before each cohort
-        after the first: true ends the boundary there (something much smaller is waiting to join), and the
-        cohorts left count as passed over, except those the order says must step now."""
+        decoded (the caller decodes them, e.g. on another thread). `interrupt(size)` is asked, before the boundary's
+        work, for each chosen cohort after the first (smallest first): true leaves that cohort and the larger ones
+        out of this boundary (something much smaller is waiting to join), counted as passed over, except those
+        the order says must step now."""
         done: list[Sampled] = []
         sizes = [running.cohort.shortest_job_steps() for running in self.running]
         chosen = self.order.choose(sizes, [running.skipped for running in self.running])
         stepping = sorted((size, k) for k, (size, steps) in enumerate(zip(sizes, chosen)) if steps)
-        stepped: set[int] = set()
+        stepped: dict[int, None] = {}     # in stepping order
         for size, k in stepping:
-            running = self.running[k]
-            if stepped and interrupt is not None and not self.order.must_step(running.skipped) and interrupt(size):
+            if stepped and interrupt is not None and not self.order.must_step(self.running[k].skipped) \
+                    and interrupt(size):
                 break
-            stepped.add(k)
-            running.cohort.advance(on_step)
+            stepped[k] = None
+        if stepped:
+            cohorts = [self.running[k].cohort for k in stepped]
+            type(cohorts[0]).advance_together(cohorts, on_step)
+        for k in stepped:
+            running = self.running[k]
             for index, codes in running.cohort.finished():
                 done.append(Sampled(running.requests[index], codes, running.notes[index]))
         for k, running in enumerate(self.running):
