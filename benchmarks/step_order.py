@@ -108,15 +108,16 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
 
 
-def format_table(pooled: dict[tuple[str, str, str], PhaseResult]) -> str:
-    """One row per server: the probe alone and under load, the long load alone and beside the probe, sixteen."""
+def format_table(pooled: dict[tuple[str, str, str], PhaseResult], orders: dict[str, str] | None = None) -> str:
+    """One row per server (`orders`: label -> its step order, MODES by default): the probe alone and under load, the
+    long load alone and beside the probe, sixteen."""
     def get(mode: str, phase: str, kind: str) -> PhaseResult | None:
         return pooled.get((mode, phase, kind))
 
     lines = ["| step order | short p50 / p90 alone ms | short p50 / p90 under load ms | p90 ratio | long answers/s "
              "alone | long answers/s beside the probe | long p50 ms beside it | 16 clients answers/s | 16 clients "
              "p50 / p99 ms | non-2xx |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for mode, order in MODES.items():
+    for mode, order in (orders or MODES).items():
         alone, loaded = get(mode, "short alone", "short"), get(mode, "mixed", "short")
         long_alone, long_mixed = get(mode, "long alone", "long"), get(mode, "mixed", "long")
         sixteen = get(mode, "sixteen", "ten")
@@ -152,7 +153,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-step-skips", type=int, default=None,
                         help="the 'after' server's T2M_MAX_STEP_SKIPS (default: the setting's default)")
     parser.add_argument("--before-code", help="a checkout of an older commit: the 'before' server runs its code "
-                                              "(with its own defaults) instead of this one's every-cohort order")
+                                              "instead of this one")
+    parser.add_argument("--before-model", help="the bundle the 'before' server serves (default: --model), e.g. the "
+                                               "older commit's own copy of it")
+    parser.add_argument("--before-step-order", default=MODES["before"], choices=sorted(set(MODES.values())),
+                        help="the 'before' server's T2M_STEP_ORDER")
     parser.add_argument("--startup-timeout", type=float, default=900.0, help="seconds a server may take to load")
     parser.add_argument("--json-out", help="also write the figures as JSON here")
     args = parser.parse_args(argv)
@@ -173,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[tuple[str, str, str], list[PhaseResult]] = {}
     start = {"startup_timeout_s": args.startup_timeout}
     model = str(Path(args.model).resolve())
-    with running_server(model, env={**env, "T2M_STEP_ORDER": MODES["before"]}, code_dir=args.before_code,
+    orders = {**MODES, "before": args.before_step_order}
+    with running_server(str(Path(args.before_model or args.model).resolve()),
+                        env={**env, "T2M_STEP_ORDER": orders["before"]}, code_dir=args.before_code,
                         **start) as old, \
             running_server(model, env={**env, "T2M_STEP_ORDER": MODES["after"], **(
                 {} if args.max_step_skips is None else {"T2M_MAX_STEP_SKIPS": str(args.max_step_skips)})},
@@ -199,13 +206,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"- CPU: {before['cpu']}; Python {before['python']}, onnxruntime {before['onnxruntime']}, "
           f"numpy {before['numpy']}; servers T2M_INTRA_OP_THREADS={args.intra_op_threads}, continuous batching")
     print(f"- load average (1, 5, 15 min): {before['load_average']} before, {after['load_average']} after")
-    if args.before_code:
-        print(f"- before: the code in {args.before_code} (its own defaults); after: this checkout")
+    if args.before_code or args.before_model:
+        print(f"- before: the code in {args.before_code or 'this checkout'} serving {args.before_model or args.model}"
+              f" ({orders['before']}); after: this checkout serving {args.model}")
     print(f"- command: python benchmarks/step_order.py {' '.join(argv if argv is not None else sys.argv[1:])}")
     print(f"- short: 2 s, one sentence, one every {args.probe_interval_ms:g} ms (open loop); long: "
           f"30 s as 3 x 10 s sentences, {args.long_clients} clients back to back; 16 clients: 10 s, one sentence")
     print()
-    print(format_table(pooled))
+    print(format_table(pooled, orders))
     if args.json_out:
         Path(args.json_out).write_text(json.dumps({"machine": {"before": before, "after": after}, "args": vars(args),
                                                    "results": [{"server": m, "phase": p, "kind": k, **r.summary(),
