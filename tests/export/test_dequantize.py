@@ -74,7 +74,8 @@ def test_an_int8_bundle_gets_float32_and_fp16_copies_and_a_float_one_is_refused(
         assert "vs the int8 bundle" in (tmp_path / scheme / "MODEL_CARD.md").read_text()
         motion = OnnxEngine.load(tmp_path / scheme, intra_op_threads=1).generate(request)
         assert np.isfinite(motion.joints).all()
-    assert json.loads((tmp_path / "int8" / "manifest.json").read_text())["quantization"]["gpt_step"] == "int8-dynamic-rows"
+    written = json.loads((tmp_path / "int8" / "manifest.json").read_text())
+    assert written["quantization"]["gpt_step"] == "int8-dynamic-rows"
     with pytest.raises(ValueError, match="dequantises int8-dynamic graphs"):
         quantize_bundle(src, tmp_path / "again", scheme="float32", parity=False)
 

@@ -216,7 +216,8 @@ def test_refusals_are_one_line(imports, tmp_path, capsys):
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "notes.txt").write_text("not a bundle")
     cases = [
-        (["quantize", str(gpt["int8"][0]), "-o", str(tmp_path / "twice")], "gpt_step.onnx is already int8-dynamic-rows"),
+        (["quantize", str(gpt["int8"][0]), "-o", str(tmp_path / "twice")],
+         "gpt_step.onnx is already int8-dynamic-rows"),
         (["quantize", str(imports["mogents"]["int8"][0]), "-o", str(tmp_path / "m")], "masked.onnx is already"),
         (["quantize", str(gpt["float32"][0]), "-o", str(tmp_path / "q"), "--parity-runs", "-1"],
          "--parity-runs must be >= 0"),

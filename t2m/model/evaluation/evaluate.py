@@ -635,8 +635,8 @@ def format_report(result: dict[str, Any], title: str = "Evaluation") -> str:
              f"(mean ± 95% interval); seed {options['seed']}; sampling temperature {options['temperature']:g}, "
              f"top-k {options['top_k'] or 'off'}.",
              _models_line(result),
-             "Embeddings come from our own contrastive evaluator (t2m/model/evaluator.py), not Guo et al.'s: the numbers "
-             "compare our models with each other, not with published tables.", "",
+             "Embeddings come from our own contrastive evaluator (t2m/model/evaluator.py), not Guo et al.'s: the "
+             "numbers compare our models with each other, not with published tables.", "",
              "## Table 1: text-to-motion (one sentence per motion)", "",
              f"R-precision is {min(options['r_precision_pool'], counts['clips'])}-way; Diversity over "
              f"{min(options['diversity_pairs'], counts['clips'])} pairs; MModality over "

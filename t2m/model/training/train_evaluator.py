@@ -1,4 +1,5 @@
-"""`t2m train evaluator`: train the contrastive text-motion evaluator (t2m/model/evaluator.py) on a dataset's train split.
+"""`t2m train evaluator`: train the contrastive text-motion evaluator (t2m/model/evaluator.py) on a dataset's train
+split.
 
     t2m train evaluator --data DIR --out RUN [--steps 1000 --batch-size 64 --lr 3e-4 --seed 0 --threads 1]
 
