@@ -129,6 +129,8 @@ def advance_together(cohorts: Sequence[HiFiGPTCohort], on_step: Callable[[int], 
     rows of any position can share it). Each job draws from its own generator in the same order as alone (its stops,
     then its depths), and every row's logits are its own (the step graphs are row-independent), so a cohort's codes
     are the same stepped alone or together."""
+    if any(cohort.residual is not cohorts[0].residual for cohort in cohorts):
+        raise ValueError("cohorts share residual calls only when they step the same residual GPT")
     works = [cohort._stops(on_step) for cohort in cohorts]
     shared = [work for work in works if len(work.owner)]
     chosen: dict[int, dict[int, np.ndarray]] = {id(work): {} for work in works}
