@@ -45,7 +45,7 @@ def row_quantize_graph(src: str | Path, dst: str | Path) -> Path:
     replaced by a per-row quantisation; inputs, outputs and weights unchanged. A DynamicQuantizeLinear feeding
     anything but MatMulIntegers and their scale products is an error naming the node."""
     import onnx
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import helper, numpy_helper
 
     model = onnx.load(str(src))
     graph = model.graph
@@ -58,9 +58,8 @@ def row_quantize_graph(src: str | Path, dst: str | Path) -> Path:
             consumers[name].append(node)
     constants = [numpy_helper.from_array(np.asarray(value, dtype), name) for name, value, dtype in (
         (f"zero_point{_SUFFIX}", ROW_ZERO_POINT, np.uint8), (f"levels{_SUFFIX}", 1.0 / 127.0, np.float32),
-        (f"tiny{_SUFFIX}", np.finfo(np.float32).tiny, np.float32), (ROW_ONE, 1.0, np.float32),
-        (f"offset{_SUFFIX}", float(ROW_ZERO_POINT), np.float32))]
-    zero_point, levels, tiny, one, offset = (c.name for c in constants)
+        (f"tiny{_SUFFIX}", np.finfo(np.float32).tiny, np.float32), (ROW_ONE, 1.0, np.float32))]
+    zero_point, levels, tiny, one = (c.name for c in constants)
     before: dict[int, list[Any]] = {}       # id(DynamicQuantizeLinear) -> the nodes that replace it
     after: dict[int, Any] = {}              # id(a rescaling Mul) -> the per-row Mul placed after it
     for node in quantizers:
@@ -89,9 +88,8 @@ def row_quantize_graph(src: str | Path, dst: str | Path) -> Path:
             ("Mul", [f"{stem}_max", levels], f"{stem}_step", {}),
             ("Max", [f"{stem}_step", tiny], x_scale, {}),          # an all-zero row: any scale, all codes 128
             ("Div", [x, x_scale], f"{stem}_ratio", {}),
-            ("Round", [f"{stem}_ratio"], f"{stem}_round", {}),
-            ("Add", [f"{stem}_round", offset], f"{stem}_shift", {}),
-            ("Cast", [f"{stem}_shift"], f"{stem}_q", {"to": TensorProto.UINT8}),
+            # round half to even, + 128, to uint8 in one node (the ratio is within +-127: nothing saturates)
+            ("QuantizeLinear", [f"{stem}_ratio", one, zero_point], f"{stem}_q", {}),
         ]
         before[id(node)] = [helper.make_node(op, inputs, [out], name=f"{out}_node", **attrs)
                             for op, inputs, out, attrs in ops]
