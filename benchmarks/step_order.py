@@ -158,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
                                                "older commit's own copy of it")
     parser.add_argument("--before-step-order", default=MODES["before"], choices=sorted(set(MODES.values())),
                         help="the 'before' server's T2M_STEP_ORDER")
+    parser.add_argument("--before-env", action="append", default=[], metavar="T2M_NAME=VALUE",
+                        help="a setting for the 'before' server only (repeatable), e.g. T2M_BLAS_THREADS=0")
     parser.add_argument("--startup-timeout", type=float, default=900.0, help="seconds a server may take to load")
     parser.add_argument("--json-out", help="also write the figures as JSON here")
     args = parser.parse_args(argv)
@@ -168,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     problems += [] if 0 < args.seconds <= MAX_SECONDS else [f"--seconds: outside (0, {MAX_SECONDS:g}]"]
     problems += [] if 1 <= args.rounds <= MAX_ROUNDS else [f"--rounds: outside 1..{MAX_ROUNDS}"]
     problems += [] if 20 <= args.probe_interval_ms <= 10_000 else ["--probe-interval-ms: outside 20..10000"]
+    before_env = dict(item.split("=", 1) for item in args.before_env if "=" in item)
+    problems += [f"--before-env: {item!r} is not T2M_NAME=VALUE" for item in args.before_env
+                 if "=" not in item or not item.startswith("T2M_")]
     if problems:
         print(f"step_order: error: {'; '.join(problems)}", file=sys.stderr)
         return 2
@@ -180,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     model = str(Path(args.model).resolve())
     orders = {**MODES, "before": args.before_step_order}
     with running_server(str(Path(args.before_model or args.model).resolve()),
-                        env={**env, "T2M_STEP_ORDER": orders["before"]}, code_dir=args.before_code,
+                        env={**env, "T2M_STEP_ORDER": orders["before"], **before_env}, code_dir=args.before_code,
                         **start) as old, \
             running_server(model, env={**env, "T2M_STEP_ORDER": MODES["after"], **(
                 {} if args.max_step_skips is None else {"T2M_MAX_STEP_SKIPS": str(args.max_step_skips)})},
@@ -206,9 +211,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"- CPU: {before['cpu']}; Python {before['python']}, onnxruntime {before['onnxruntime']}, "
           f"numpy {before['numpy']}; servers T2M_INTRA_OP_THREADS={args.intra_op_threads}, continuous batching")
     print(f"- load average (1, 5, 15 min): {before['load_average']} before, {after['load_average']} after")
-    if args.before_code or args.before_model:
+    if args.before_code or args.before_model or before_env:
         print(f"- before: the code in {args.before_code or 'this checkout'} serving {args.before_model or args.model}"
-              f" ({orders['before']}); after: this checkout serving {args.model}")
+              f" ({orders['before']}{''.join(f', {k}={v}' for k, v in before_env.items())}); after: this checkout "
+              f"serving {args.model}")
     print(f"- command: python benchmarks/step_order.py {' '.join(argv if argv is not None else sys.argv[1:])}")
     print(f"- short: 2 s, one sentence, one every {args.probe_interval_ms:g} ms (open loop); long: "
           f"30 s as 3 x 10 s sentences, {args.long_clients} clients back to back; 16 clients: 10 s, one sentence")

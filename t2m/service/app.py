@@ -52,6 +52,15 @@ def load_onnx_engine(settings: Settings) -> Engine:
                            execution=settings.execution)
 
 
+def limit_blas_threads(threads: int) -> None:
+    """Every BLAS loaded in this process (numpy's, scipy's OpenBLAS or MKL) to `threads` threads (0: leave their own
+    choice)."""
+    if threads > 0:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=threads, user_api="blas")
+
+
 def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engine]) -> None:
     """Every bundle (the default first), each through `factory` with settings naming it alone, then its batcher."""
     settings = state.settings
@@ -59,6 +68,7 @@ def _load_in_background(state: ServiceState, factory: Callable[[Settings], Engin
     try:
         loaded = load_engines(settings.model_dirs, lambda directory: factory(settings.for_bundle(directory)))
         preload_formats()
+        limit_blas_threads(settings.blas_threads)     # after the loads: they bring further BLAS libraries (scipy's)
     except Exception as error:  # reported by /health; the process stays up so the cause is visible
         log.error("model bundles failed to load: %s", error)
         state.set_error(str(error))

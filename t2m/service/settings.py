@@ -51,6 +51,11 @@ class Settings(BaseSettings):
     intra_op_threads: int = Field(1, ge=0, description="onnxruntime intra-op threads per session (0 = ORT's choice: "
                                                        "all cores, faster only for release-size imported models).")
     inter_op_threads: int = Field(1, ge=0, description="onnxruntime inter-op threads per session.")
+    # 1 by default: the engine's own numpy work is small (the unknown-sentence index, joints from features), and
+    # numpy's BLAS threads left at its default spin beside onnxruntime's thread (measured: a 10 s motion's CPU time
+    # 204 -> 132 ms per request with one, docs/speed-history.md)
+    blas_threads: int = Field(1, ge=0, description="numpy's BLAS threads in the service process (0 = BLAS's own "
+                                                   "choice: one per core).")
     execution_providers: Annotated[list[Provider], NoDecode] = Field(
         default_factory=_cpu_only, min_length=1,
         description="onnxruntime execution providers of the model sessions, in order, comma-separated in the env: "

@@ -9,6 +9,7 @@ from benchmarks.http_latency import main as latency_main
 from benchmarks.load_test import main as load_main
 from benchmarks.load_test import run_phase
 from benchmarks.server_process import require_loopback
+from benchmarks.step_order import main as step_order_main
 from benchmarks.stream_latency import main as stream_main
 
 
@@ -32,8 +33,10 @@ def test_cli_refuses_in_one_line(capsys):
     assert latency_main(["--url", "http://127.0.0.1:9", "--formats", "json,fbx"]) == 2
     assert stream_main(["--url", "http://10.0.0.5:8000"]) == 2
     assert stream_main(["--url", "http://127.0.0.1:9", "--repeats", "0"]) == 2
+    assert step_order_main(["--before-env", "BLAS=0"]) == 2                  # not a T2M_ setting: refused, no server
     errors = capsys.readouterr().err.strip().splitlines()
-    assert len(errors) == 7 and all(": error: " in line for line in errors)
+    assert len(errors) == 8 and all(": error: " in line for line in errors)
+    assert "--before-env: 'BLAS=0' is not T2M_NAME=VALUE" in errors[-1]
 
 
 def test_run_phase_checks_bounds_before_connecting():

@@ -52,3 +52,22 @@ def test_empty_api_key_means_none(monkeypatch):
 def test_bad_values_are_refused_naming_the_field(field, value):
     with pytest.raises(ValidationError, match=field):
         Settings(**{field: value})
+
+
+def test_the_service_limits_numpys_blas_threads_at_start_up(make_client, random_bundle):
+    """T2M_BLAS_THREADS (1 by default) holds every BLAS of the serving process (numpy's, and scipy's that the loads
+    bring) to that many threads, so that they do not spin beside onnxruntime's; 0 leaves their own choice. (Not
+    undone afterwards: OpenBLAS 0.3.31 ignores a limit set from another thread once the main thread has set one, so
+    the test sets none there.)"""
+    from threadpoolctl import threadpool_info
+
+    def blas_threads() -> dict[str, int]:
+        return {pool["filepath"]: pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+    before = blas_threads()
+    if not before:
+        pytest.skip("numpy has no BLAS thread pool threadpoolctl can see here")
+    make_client(Settings(bundle_path=random_bundle, blas_threads=0))
+    assert {path: blas_threads()[path] for path in before} == before
+    make_client(Settings(bundle_path=random_bundle, blas_threads=1))
+    assert set(blas_threads().values()) == {1}
