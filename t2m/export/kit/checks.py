@@ -7,12 +7,11 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["GROSS_PARITY_ERROR", "INT8_LABEL", "INT8_LABELS", "ROW_INT8_LABEL", "quantize_in_place", "text_int8_line"]
-
 from t2m.bundle.manifest import INT8_LABEL, INT8_LABELS, ROW_INT8_LABEL
 
-log = logging.getLogger(__name__)
+__all__ = ["GROSS_PARITY_ERROR", "INT8_LABEL", "INT8_LABELS", "ROW_INT8_LABEL", "quantize_in_place", "text_int8_line"]
 
+log = logging.getLogger(__name__)
 
 
 GROSS_PARITY_ERROR = 1e-3
