@@ -20,16 +20,17 @@ Each request keeps its own random generator, so no schedule changes its motion.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
-from t2m.service.engine.continuous import Sampled
+from t2m.service.engine.continuous import PreparedJobs, Sampled
 from t2m.service.engine.requests import segment_steps
 from t2m.service.engine.step_order import ShortestFirst, StepOrder
 from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
@@ -258,6 +259,9 @@ class CohortRunner(Protocol):
     def admit(self, requests: Sequence[GenerationRequest]) -> list[tuple[GenerationRequest, Motion | BaseException]]:
         ...
 
+    def admit_prepared(self, requests: Sequence[GenerationRequest],
+                       prepared: PreparedJobs) -> list[tuple[GenerationRequest, Motion | BaseException]]: ...
+
     def advance(self) -> list[tuple[GenerationRequest, Motion | BaseException]]: ...
 
     def advance_codes(self, on_step: Callable[[int], None] | None = None,
@@ -289,15 +293,16 @@ class ContinuousBatcher(QueuedWorkers):
         super().__init__(engine, max_queue=max_queue, max_batch_rows=max_batch_rows, window_s=window_s,
                          workers=workers)
 
-    def _smaller_waiting(self, size: int) -> bool:
-        """Whether a prepared request much smaller (the order's ratio) than a cohort of `size` steps waits to join:
-        then the boundary ends before that cohort (engine/continuous.py RunningCohorts.advance_codes)."""
+    def _smaller_waiting(self, size: int, preparing: Sequence[GenerationRequest] = ()) -> bool:
+        """Whether a request much smaller (the order's ratio) than a cohort of `size` steps waits to join (queued,
+        or admitted and being prepared): then the boundary ends before that cohort (engine/continuous.py
+        RunningCohorts.advance_codes)."""
         ratio = getattr(self.step_order, "ratio", None)
         if ratio is None:
             return False
         with self._cond:
             waiting = [queued.request for queued in self._queue]
-        return any(ratio * self._request_steps(request) < size for request in waiting)
+        return any(ratio * self._request_steps(request) < size for request in [*waiting, *preparing])
 
     def _request_steps(self, request: GenerationRequest) -> int:
         """A queued request's size in steps: its longest segment (a null duration counts as the model's longest;
@@ -315,28 +320,39 @@ class ContinuousBatcher(QueuedWorkers):
         return session
 
     def _work(self) -> None:
+        """Step the session; text encoding (`engine.prepare`) and decoding (`engine.finish`) of requests that join
+        or leave while cohorts step run on a helper thread beside it, so the steps of the requests already running
+        (a short one among long ones) do not wait for other requests' text graph or decoder."""
+        helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{threading.current_thread().name}-helper")
+        try:
+            self._step_loop(helper)
+        finally:
+            helper.shutdown(wait=True)
+
+    def _step_loop(self, helper: ThreadPoolExecutor) -> None:
         session = self._session()
         running: dict[int, QueuedRequest] = {}       # id(request) -> its queue entry
+        preparing: deque[tuple[list[QueuedRequest], Future]] = deque()   # admitted, jobs being made on the helper
         while True:
-            joining = self._next_admitted(session.rows)
+            joining = self._next_admitted(session.rows + sum(rows_of(q.request) for live, _ in preparing
+                                                             for q in live))
             if joining is None:
                 return
             try:
                 live = self._live(joining)
-                for queued in live:
-                    running[id(queued.request)] = queued
-                if live:
-                    mid_run = session.joins_mid_run
-                    for request, result in session.admit([queued.request for queued in live]):
-                        self._finish(running.pop(id(request)), result)
-                    self.joins_mid_run += session.joins_mid_run - mid_run
-                    self.batches_run += 1
-                    self.largest_batch = max(self.largest_batch, len(running))
+                if live and session.idle and not preparing:   # nothing steps: no reason to hand over
+                    self._admit(session, live, None, running)
+                elif live:
+                    preparing.append((live, helper.submit(self.engine.prepare,   # type: ignore[attr-defined]
+                                                          [queued.request for queued in live])))
+                while preparing and (session.idle or preparing[0][1].done()):
+                    self._admit(session, *preparing.popleft(), running=running)
                 if session.idle:
                     continue
-                for done in session.advance_codes(interrupt=self._smaller_waiting):
-                    self._finish(running.pop(id(done.request)), self.engine.finish(  # type: ignore[attr-defined]
-                        done.request, done.codes, done.notes))
+                waiting = tuple(queued.request for live, _ in preparing for queued in live)
+                for done in session.advance_codes(interrupt=functools.partial(self._smaller_waiting,
+                                                                              preparing=waiting)):
+                    helper.submit(self._decode, running.pop(id(done.request)), done)
             except BaseException as error:  # an engine failure fails what it was running, never the worker
                 log.exception("continuous generation of %d requests failed", len(running))
                 for queued in running.values():
@@ -345,6 +361,27 @@ class ContinuousBatcher(QueuedWorkers):
                 session = self._session()
             if self.on_step is not None:
                 self.on_step(session.steps)
+
+    def _admit(self, session: CohortRunner, live: list[QueuedRequest], prepared: Future | None,
+               running: dict[int, QueuedRequest]) -> None:
+        """Start `live` as a cohort with the jobs `prepared` made (None: prepare them here); those that failed
+        before sampling are answered now."""
+        for queued in live:
+            running[id(queued.request)] = queued
+        requests = [queued.request for queued in live]
+        mid_run = session.joins_mid_run
+        finished = (session.admit(requests) if prepared is None
+                    else session.admit_prepared(requests, prepared.result()))
+        for request, result in finished:
+            self._finish(running.pop(id(request)), result)
+        self.joins_mid_run += session.joins_mid_run - mid_run
+        self.batches_run += 1
+        self.largest_batch = max(self.largest_batch, len(running))
+
+    def _decode(self, queued: QueuedRequest, done: Sampled) -> None:
+        """On the helper: a request whose codes are done, decoded (`engine.finish` returns a failure, never
+        raises) and answered."""
+        self._finish(queued, self.engine.finish(done.request, done.codes, done.notes))  # type: ignore[attr-defined]
 
 
 def batcher_for(engine: Engine, *, continuous: bool, max_queue: int, max_batch_rows: int, window_s: float,

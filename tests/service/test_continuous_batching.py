@@ -258,3 +258,47 @@ def test_hifigpt_cohorts_of_different_ages_share_the_residual_calls(hifigpt_bund
     assert calls[2:] == [sum(rows)] * engine.codes.temporal.depth     # then R residual calls for all rows
     finished = {id(request): result for request, result in _run_until_idle(session)}
     assert _same_motion(finished[id(long)], alone["long"]) and _same_motion(finished[id(short)], alone["short"])
+
+
+class _ThreadRecordingEngine:
+    """The engine, with the thread each `prepare` and `finish` the batcher calls runs on recorded."""
+
+    def __init__(self, engine) -> None:
+        self._engine = engine
+        self.threads: list[tuple[str, str]] = []      # (call, thread name)
+
+    def __getattr__(self, name: str):
+        return getattr(self._engine, name)
+
+    def prepare(self, requests):
+        self.threads.append(("prepare", threading.current_thread().name))
+        return self._engine.prepare(requests)
+
+    def finish(self, request, codes, notes):
+        self.threads.append(("finish", threading.current_thread().name))
+        return self._engine.finish(request, codes, notes)
+
+
+def test_text_encoding_and_decoding_run_beside_the_steps(engine):
+    """A request that joins while a cohort steps is prepared (text graph) on the worker's helper thread, and every
+    finished request is decoded there, so the steps of the running requests never wait for them; motions unchanged."""
+    alone_long, alone_short = engine.generate(_long()), engine.generate(_short())
+    recording = _ThreadRecordingEngine(engine)
+    futures: dict[str, Future] = {}
+
+    def on_step(steps: int) -> None:
+        if steps == 3 and "short" not in futures:
+            futures["short"] = batcher.submit_nowait(_short())
+
+    batcher = ContinuousBatcher(recording, window_s=0.0, on_step=on_step)
+    try:
+        futures["long"] = batcher.submit_nowait(_long())
+        long = futures["long"].result(timeout=600)
+        short = futures["short"].result(timeout=600)
+    finally:
+        batcher.close()
+    # the long request, alone at first, was prepared inline by the session (not through the batcher); the short one,
+    # joining mid-run, on the helper; both decoded there
+    assert recording.threads == [("prepare", "t2m-engine-0-helper_0")] + [("finish", "t2m-engine-0-helper_0")] * 2
+    assert batcher.joins_mid_run == 1 and batcher.in_flight == 0
+    assert _same_motion(short, alone_short) and _same_motion(long, alone_long)

@@ -99,7 +99,11 @@ class RunningCohorts:
 
     def admit(self, requests: Sequence[GenerationRequest]) -> Finished:
         """Start `requests` as a new cohort at the next step; those failing before sampling are returned at once."""
-        prepared = self.engine.prepare(requests)
+        return self.admit_prepared(requests, self.engine.prepare(requests))
+
+    def admit_prepared(self, requests: Sequence[GenerationRequest], prepared: PreparedJobs) -> Finished:
+        """`admit` for requests whose jobs `engine.prepare` already made (on another thread: the batcher prepares
+        while the cohorts step); those that failed in it are returned at once."""
         failed: Finished = [(request, error) for request, error in zip(requests, prepared.failures)
                             if error is not None]
         if prepared.jobs:
