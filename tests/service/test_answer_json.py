@@ -12,11 +12,14 @@ from t2m.service.formats import frames_json, ndjson, stream_frames
 def test_frames_are_the_bytes_json_dumps_wrote():
     joints = np.random.default_rng(0).normal(size=(40, 22, 3)).astype(np.float32) * 3
     message = {**stream_frames(8, joints), "note": "ascii only"}
-    assert ndjson(message) == json.dumps(message, separators=(",", ":")).encode() + b"\n"
-    assert json.loads(ndjson(message))["frames"] == frames_json(joints)
+    as_lists = {**message, "frames": message["frames"].tolist()}
+    assert ndjson(message) == json.dumps(as_lists, separators=(",", ":")).encode() + b"\n"
+    assert json.loads(ndjson(message))["frames"] == frames_json(joints).tolist()
 
 
 def test_a_lone_surrogate_still_gives_valid_json():
     message = {"type": "error", "detail": "segments.0.text: \ud800 is no text", "values": [1.5, -0.0]}
     line = ndjson(message)
     assert line.endswith(b"\n") and json.loads(line) == message
+    frames = stream_frames(0, np.ones((2, 22, 3), np.float32))    # frames beside such text: through json.dumps too
+    assert json.loads(ndjson({**frames, "note": "\ud800"}))["frames"] == frames["frames"].tolist()
