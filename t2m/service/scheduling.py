@@ -332,24 +332,26 @@ class ContinuousBatcher(QueuedWorkers):
     def _step_loop(self, helper: ThreadPoolExecutor) -> None:
         session = self._session()
         running: dict[int, QueuedRequest] = {}       # id(request) -> its queue entry
-        preparing: deque[tuple[list[QueuedRequest], Future]] = deque()   # admitted, jobs being made on the helper
+        preparing: tuple[list[QueuedRequest], Future] | None = None   # admitted, its jobs being made on the helper
         while True:
-            joining = self._next_admitted(session.rows + sum(rows_of(q.request) for live, _ in preparing
-                                                             for q in live))
+            # one preparation at a time: what arrives meanwhile waits in the queue and joins as one cohort after it
+            # (a graph call per cohort per step: many small cohorts would cost more than the text work saves)
+            joining = [] if preparing else self._next_admitted(session.rows)
             if joining is None:
                 return
             try:
                 live = self._live(joining)
-                if live and session.idle and not preparing:   # nothing steps: no reason to hand over
+                if live and session.idle:   # nothing steps: no reason to hand over
                     self._admit(session, live, None, running)
                 elif live:
-                    preparing.append((live, helper.submit(self.engine.prepare,   # type: ignore[attr-defined]
-                                                          [queued.request for queued in live])))
-                while preparing and (session.idle or preparing[0][1].done()):
-                    self._admit(session, *preparing.popleft(), running=running)
+                    preparing = live, helper.submit(self.engine.prepare,   # type: ignore[attr-defined]
+                                                    [queued.request for queued in live])
+                if preparing and (session.idle or preparing[1].done()):
+                    ready, preparing = preparing, None
+                    self._admit(session, *ready, running=running)
                 if session.idle:
                     continue
-                waiting = tuple(queued.request for live, _ in preparing for queued in live)
+                waiting = tuple(queued.request for queued in preparing[0]) if preparing else ()
                 for done in session.advance_codes(interrupt=functools.partial(self._smaller_waiting,
                                                                               preparing=waiting)):
                     helper.submit(self._decode, running.pop(id(done.request)), done)
@@ -365,13 +367,20 @@ class ContinuousBatcher(QueuedWorkers):
     def _admit(self, session: CohortRunner, live: list[QueuedRequest], prepared: Future | None,
                running: dict[int, QueuedRequest]) -> None:
         """Start `live` as a cohort with the jobs `prepared` made (None: prepare them here); those that failed
-        before sampling are answered now."""
+        before sampling are answered now (all of them, if the preparation itself raised: the running ones go on)."""
+        requests = [queued.request for queued in live]
+        if prepared is not None:
+            try:
+                jobs = prepared.result()
+            except Exception as error:
+                log.exception("preparing %d requests failed", len(live))
+                for queued in live:
+                    self._finish(queued, error)
+                return
         for queued in live:
             running[id(queued.request)] = queued
-        requests = [queued.request for queued in live]
         mid_run = session.joins_mid_run
-        finished = (session.admit(requests) if prepared is None
-                    else session.admit_prepared(requests, prepared.result()))
+        finished = session.admit(requests) if prepared is None else session.admit_prepared(requests, jobs)
         for request, result in finished:
             self._finish(running.pop(id(request)), result)
         self.joins_mid_run += session.joins_mid_run - mid_run

@@ -302,3 +302,30 @@ def test_text_encoding_and_decoding_run_beside_the_steps(engine):
     assert recording.threads == [("prepare", "t2m-engine-0-helper_0")] + [("finish", "t2m-engine-0-helper_0")] * 2
     assert batcher.joins_mid_run == 1 and batcher.in_flight == 0
     assert _same_motion(short, alone_short) and _same_motion(long, alone_long)
+
+
+def test_a_preparation_that_raises_fails_its_requests_and_nothing_else(engine):
+    """The helper's text work failing (not a request's own error, which `prepare` answers itself) answers the
+    requests it was preparing with that error; the cohort already stepping goes on to its motion."""
+    alone_long = engine.generate(_long())
+    recording = _ThreadRecordingEngine(engine)
+
+    def broken(requests):
+        raise RuntimeError("text graph unavailable")
+
+    recording.prepare = broken
+    futures: dict[str, Future] = {}
+
+    def on_step(steps: int) -> None:
+        if steps == 3 and "short" not in futures:
+            futures["short"] = batcher.submit_nowait(_short())
+
+    batcher = ContinuousBatcher(recording, window_s=0.0, on_step=on_step)
+    try:
+        futures["long"] = batcher.submit_nowait(_long())
+        long = futures["long"].result(timeout=600)
+        with pytest.raises(RuntimeError, match="text graph unavailable"):
+            futures["short"].result(timeout=600)
+    finally:
+        batcher.close()
+    assert _same_motion(long, alone_long) and batcher.in_flight == 0
