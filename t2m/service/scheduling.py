@@ -388,9 +388,14 @@ class ContinuousBatcher(QueuedWorkers):
         self.largest_batch = max(self.largest_batch, len(running))
 
     def _decode(self, queued: QueuedRequest, done: Sampled) -> None:
-        """On the helper: a request whose codes are done, decoded (`engine.finish` returns a failure, never
-        raises) and answered."""
-        self._finish(queued, self.engine.finish(done.request, done.codes, done.notes))  # type: ignore[attr-defined]
+        """On the helper: a request whose codes are done, decoded and answered (with the failure, if any: nothing
+        raised on the helper may leave a request unanswered)."""
+        try:
+            result = self.engine.finish(done.request, done.codes, done.notes)  # type: ignore[attr-defined]
+        except BaseException as error:
+            log.exception("decoding a finished request failed")
+            result = error
+        self._finish(queued, result)
 
 
 def batcher_for(engine: Engine, *, continuous: bool, max_queue: int, max_batch_rows: int, window_s: float,

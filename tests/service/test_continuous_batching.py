@@ -329,3 +329,22 @@ def test_a_preparation_that_raises_fails_its_requests_and_nothing_else(engine):
     finally:
         batcher.close()
     assert _same_motion(long, alone_long) and batcher.in_flight == 0
+
+
+def test_a_decoder_that_raises_still_answers_and_the_worker_goes_on(engine):
+    """Decoding runs on the helper: an exception there must reach the request's answer, not vanish in a thread."""
+    recording = _ThreadRecordingEngine(engine)
+
+    def broken(request, codes, notes):
+        raise MemoryError("decoder out of memory")
+
+    recording.finish = broken
+    batcher = ContinuousBatcher(recording, window_s=0.0)
+    try:
+        with pytest.raises(MemoryError, match="decoder out of memory"):
+            batcher.submit_nowait(_short()).result(timeout=120)
+        recording.finish = engine.finish
+        assert _same_motion(batcher.submit_nowait(_short()).result(timeout=120), engine.generate(_short()))
+    finally:
+        batcher.close()
+    assert batcher.in_flight == 0
