@@ -279,29 +279,36 @@ class _ThreadRecordingEngine:
         return self._engine.finish(request, codes, notes)
 
 
-def test_text_encoding_and_decoding_run_beside_the_steps(engine):
-    """A request that joins while a cohort steps is prepared (text graph) on the worker's helper thread, and every
-    finished request is decoded there, so the steps of the running requests never wait for them; motions unchanged."""
-    alone_long, alone_short = engine.generate(_long()), engine.generate(_short())
-    recording = _ThreadRecordingEngine(engine)
+def _short_joining_at_step_3(engine_like) -> tuple[dict[str, Future], ContinuousBatcher]:
+    """A long request through a ContinuousBatcher of `engine_like` and a short one submitted from the worker after
+    the long one's step 3 (so it joins mid-run): both futures once both are done, and the closed batcher."""
     futures: dict[str, Future] = {}
 
     def on_step(steps: int) -> None:
         if steps == 3 and "short" not in futures:
             futures["short"] = batcher.submit_nowait(_short())
 
-    batcher = ContinuousBatcher(recording, window_s=0.0, on_step=on_step)
+    batcher = ContinuousBatcher(engine_like, window_s=0.0, on_step=on_step)
     try:
         futures["long"] = batcher.submit_nowait(_long())
-        long = futures["long"].result(timeout=600)
-        short = futures["short"].result(timeout=600)
+        futures["long"].exception(timeout=600)
+        futures["short"].exception(timeout=600)
     finally:
         batcher.close()
+    return futures, batcher
+
+
+def test_text_encoding_and_decoding_run_beside_the_steps(engine):
+    """A request that joins while a cohort steps is prepared (text graph) on the worker's helper thread, and every
+    finished request is decoded there, so the steps of the running requests never wait for them; motions unchanged."""
+    alone_long, alone_short = engine.generate(_long()), engine.generate(_short())
+    recording = _ThreadRecordingEngine(engine)
+    futures, batcher = _short_joining_at_step_3(recording)
     # the long request, alone at first, was prepared inline by the session (not through the batcher); the short one,
     # joining mid-run, on the helper; both decoded there
     assert recording.threads == [("prepare", "t2m-engine-0-helper_0")] + [("finish", "t2m-engine-0-helper_0")] * 2
     assert batcher.joins_mid_run == 1 and batcher.in_flight == 0
-    assert _same_motion(short, alone_short) and _same_motion(long, alone_long)
+    assert _same_motion(futures["short"].result(), alone_short) and _same_motion(futures["long"].result(), alone_long)
 
 
 def test_a_preparation_that_raises_fails_its_requests_and_nothing_else(engine):
@@ -314,21 +321,10 @@ def test_a_preparation_that_raises_fails_its_requests_and_nothing_else(engine):
         raise RuntimeError("text graph unavailable")
 
     recording.prepare = broken
-    futures: dict[str, Future] = {}
-
-    def on_step(steps: int) -> None:
-        if steps == 3 and "short" not in futures:
-            futures["short"] = batcher.submit_nowait(_short())
-
-    batcher = ContinuousBatcher(recording, window_s=0.0, on_step=on_step)
-    try:
-        futures["long"] = batcher.submit_nowait(_long())
-        long = futures["long"].result(timeout=600)
-        with pytest.raises(RuntimeError, match="text graph unavailable"):
-            futures["short"].result(timeout=600)
-    finally:
-        batcher.close()
-    assert _same_motion(long, alone_long) and batcher.in_flight == 0
+    futures, batcher = _short_joining_at_step_3(recording)
+    with pytest.raises(RuntimeError, match="text graph unavailable"):
+        futures["short"].result()
+    assert _same_motion(futures["long"].result(), alone_long) and batcher.in_flight == 0
 
 
 def test_a_decoder_that_raises_still_answers_and_the_worker_goes_on(engine):
