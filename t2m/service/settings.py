@@ -66,7 +66,9 @@ class Settings(BaseSettings):
         "auto", description="Keep the step graphs' key/value caches on the device between steps (onnxruntime "
                             "I/O binding): 'auto' = on when the providers include a GPU, 'on' also on CPU (the "
                             "tests), 'off' never.")
-    engine_workers: int = Field(1, ge=1, le=16, description="Worker threads that run batches of generations.")
+    engine_workers: int = Field(1, ge=1, le=16, description="Worker threads that run batches of generations (with "
+                                "continuous batching each has a helper thread for the text and decoder work of "
+                                "requests that join or leave while it steps).")
     max_queue: int = Field(16, ge=1, description="Requests allowed to wait for a worker; one more gets 429.")
     max_batch_rows: int = Field(64, ge=1, description="GPT rows (segments x cond/uncond) merged into one batch.")
     batch_window_ms: float = Field(5.0, ge=0, description="How long a batch waits for more requests to join it (with "
