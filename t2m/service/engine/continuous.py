@@ -9,10 +9,11 @@ each per step boundary (T2M-HiFiGPT: a temporal call each, then the residual GPT
 of them: that cache is fresh at every time step, so rows of any position share it); which of them step at a
 boundary is the session's StepOrder's choice (engine/step_order.py: the shortest work first by default). Requests
 admitted while the newest cohort has not stepped yet join it (nothing was computed for it, so it is the same as
-starting together). A request is decoded and returned the step its last segment finishes, whatever is still running
-beside it. Its codes come from its own seeded generator and its own rows' logits (int8 graphs quantise activations
-per row: t2m/export/writing/row_quantize.py), so they are the same alone, in a run-to-completion batch, joined
-mid-run, in any step order, or sharing residual calls with other cohorts.
+starting together). A request leaves the step its last segment finishes, whatever is still running beside it, and is
+decoded then (the service's batcher decodes it, and prepares requests that join mid-run, on a helper thread beside
+the steps: t2m.service.scheduling.ContinuousBatcher). Its codes come from its own seeded generator and its own rows'
+logits (int8 graphs quantise activations per row: t2m/export/writing/row_quantize.py), so they are the same alone,
+in a run-to-completion batch, joined mid-run, in any step order, or sharing residual calls with other cohorts.
 """
 from __future__ import annotations
 
