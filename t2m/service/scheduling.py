@@ -12,7 +12,8 @@ Two ways to run what was admitted, side by side here:
 - `ContinuousBatcher` (continuous stepping): the worker keeps its engine's continuous session
   (t2m.service.engine.continuous) open; the requests admitted at a step boundary start as a new cohort beside the
   running ones (or join the newest if it has not stepped yet), the cohorts its StepOrder chooses step once (the
-  shortest work first: t2m.service.engine.step_order), and a request is answered the step its codes are done.
+  shortest work first: t2m.service.engine.step_order), and a request is answered the step its codes are done,
+  decoded on the worker's helper thread (which also prepares the requests that join while cohorts step).
 Words: a *queued request* waits here; a *batch* is the requests run together to their end; a *cohort* the requests
 that started stepping at one boundary; *rows* what a step's graph call computes (a segment each, two with guidance).
 Each request keeps its own random generator, so no schedule changes its motion.
