@@ -35,6 +35,7 @@ if __package__ in (None, ""):  # run as a script: make `benchmarks.*` and `t2m` 
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.continuous_batching import machine
 from t2m.export.writing.quantize import quantize_graph
+from t2m.service.engine.bundle import session_options
 
 __all__ = ["GraphCall", "count_macs", "main", "request_calls"]
 
@@ -99,9 +100,8 @@ def count_macs(profile: list[dict]) -> float:
 
 
 def _session(path: Path, threads: int, profile: bool = False) -> ort.InferenceSession:
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
+    """A session opened with the service's options (t2m.service.engine.bundle.session_options)."""
+    options = session_options(threads, 1)
     options.enable_profiling = profile
     options.profile_file_prefix = str(Path(tempfile.gettempdir()) / "t2m_compute_floor")
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
