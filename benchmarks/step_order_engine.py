@@ -25,15 +25,14 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-KINDS = {"short": (2.0, 1), "long": (30.0, 3), "ten": (10.0, 1)}   # kind -> (motion seconds, sentences)
-SENTENCES = ["a person walks forward", "a person waves with the right hand", "a person bows", "a person jumps",
-             "a person turns around", "a person sits down", "a person kicks with the left foot", "a person runs"]
 
 
 def run_phase_here(model: str, phase: str, seconds: float, long_clients: int, clients: int, interval_s: float,
-                   seed: int) -> dict[str, dict]:
+                   seed: int, kinds: dict[str, tuple[float, int]], sentences: list[str]) -> dict[str, dict]:
     """The worker: one phase on a ContinuousBatcher of this process's `t2m` (whichever checkout PYTHONPATH
-    names); per kind its latencies (ms) and the phase's length."""
+    names), its requests made as step_order.py makes them (`kinds`: kind -> (motion seconds, sentences), texts
+    drawn from `sentences`; the parent passes step_order.KINDS and load_test.SENTENCES, which a worker running an
+    older checkout cannot import); per kind its latencies (ms) and the phase's length."""
     from threadpoolctl import threadpool_limits
 
     from t2m.service.engine.engine import OnnxEngine
@@ -46,11 +45,11 @@ def run_phase_here(model: str, phase: str, seconds: float, long_clients: int, cl
     guidance = engine.limits.guidance()   # the model's default, as the HTTP API's requests get it
 
     def request(rng: random.Random, kind: str) -> GenerationRequest:
-        motion, sentences = KINDS[kind]
-        return GenerationRequest([SegmentRequest(rng.choice(SENTENCES), motion / sentences) for _ in range(sentences)],
+        motion, count = kinds[kind]
+        return GenerationRequest([SegmentRequest(rng.choice(sentences), motion / count) for _ in range(count)],
                                  seed=rng.randrange(2**31), guidance=guidance)
 
-    for kind in KINDS:
+    for kind in kinds:
         batcher.submit_nowait(request(random.Random(0), kind)).result()
     users = {"short alone": {"short": 1}, "long alone": {"long": long_clients},
              "mixed": {"short": 1, "long": long_clients}, "sixteen": {"ten": clients}}[phase]
@@ -96,12 +95,16 @@ def run_phase_here(model: str, phase: str, seconds: float, long_clients: int, cl
 
 
 def run_phase_in_child(code: Path, args: argparse.Namespace, phase: str, seed: int) -> dict[str, dict]:
-    """One phase in a child process running `code`'s t2m."""
+    """One phase in a child process running `code`'s t2m, with step_order.py's requests."""
+    from benchmarks.load_test import SENTENCES
+    from benchmarks.step_order import KINDS
+
     env = {**os.environ, "PYTHONPATH": str(code), "OMP_NUM_THREADS": "1"}
     command = [sys.executable, str(Path(__file__).resolve()), "--worker", phase,
                "--model", str(Path(args.model).resolve()), "--seconds", str(args.seconds),
                "--long-clients", str(args.long_clients), "--clients", str(args.clients),
-               "--probe-interval-ms", str(args.probe_interval_ms), "--seed", str(seed)]
+               "--probe-interval-ms", str(args.probe_interval_ms), "--seed", str(seed),
+               "--workload", json.dumps({"kinds": KINDS, "sentences": SENTENCES})]
     done = subprocess.run(command, cwd=code, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"the {phase} phase with the code in {code} failed:\n{done.stderr[-2000:]}")
@@ -120,10 +123,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--before-code", type=Path, help="a checkout of an older commit (its t2m is the 'before')")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--workload", help=argparse.SUPPRESS)   # the worker's kinds and sentences, as JSON
     args = parser.parse_args(argv)
     if args.worker:
+        workload = json.loads(args.workload)
+        kinds = {kind: (float(motion), int(count)) for kind, (motion, count) in workload["kinds"].items()}
         print(json.dumps(run_phase_here(args.model, args.worker, args.seconds, args.long_clients, args.clients,
-                                        args.probe_interval_ms / 1e3, args.seed)))
+                                        args.probe_interval_ms / 1e3, args.seed, kinds, workload["sentences"])))
         return 0
     if args.before_code is not None and not (args.before_code / "t2m" / "service" / "scheduling.py").is_file():
         parser.error(f"--before-code {args.before_code}: not a checkout of this repository")
