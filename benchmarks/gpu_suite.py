@@ -77,6 +77,7 @@ class Case:
     torch: Callable[[torch.device], Generate] | None
     decoder: Path
     kv_cache: bool = True                       # False: whole-map passes (masked), nothing to bind
+    fixed: Callable[[str], Generate] | None = None  # device -> generate over gpt_step_fixed.onnx (CUDA graphs)
 
 
 GRAPHS = ("shipped", "float32", "fp16", "fp16-fused")
@@ -200,6 +201,22 @@ def onnx_gpt(step_path: Path, n_layer: int, n_head: int, head_dim: int, length: 
     return make
 
 
+def fixed_gpt(step_path: Path, config: Any, dim: int, tokens: int) -> Callable[[str], Generate]:
+    """The GPT loop over the fixed-capacity step (engine/graphed_step.py): CUDA graphs on 'cuda', none on 'cpu'."""
+    def make(device: str) -> Generate:
+        from t2m.service.engine.bundle import session_options
+        from t2m.service.engine.execution import Execution
+        from t2m.service.engine.graphed_step import FixedCacheGptStep, fixed_cache_session
+
+        served = GRAPH_VARIANT(step_path) if GRAPH_VARIANT is not None else step_path
+        providers = Execution(("cuda",) if device == "cuda" else ("cpu",)).ort_providers
+        session = fixed_cache_session(served, providers, cuda_graph=device == "cuda", options=session_options(0, 1))
+        step = FixedCacheGptStep(session, config.n_layer, config.n_head, config.head_dim, config.block_size,
+                                 config.length_conditioning, cuda_graph=device == "cuda")
+        return gpt_generate(step, dim, tokens, config.max_tokens, config.end_id)
+    return make
+
+
 def torch_gpt(config: Any, dim: int, tokens: int) -> Callable[[torch.device], Generate]:
     def make(device: torch.device) -> Generate:
         from t2m.model.networks.gpt import MotionGPT
@@ -293,7 +310,7 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
     """T2M-GPT's release sizes (random weights), exported with the project's exporters."""
     from t2m.export.bench.models import RELEASE_GPT, RELEASE_VQ
     from t2m.export.graphs.decoder import export_decoder
-    from t2m.export.graphs.gpt import export_gpt_step
+    from t2m.export.graphs.gpt import export_gpt_fixed_cache_step, export_gpt_step
     from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
@@ -301,9 +318,11 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
                         dropout=0.0, text_dim=512, length_conditioning=False) if tiny else RELEASE_GPT)
     vq = VQConfig(width=32, code_dim=32, nb_code=64) if tiny else RELEASE_VQ
     step_path, decoder_path = workdir / "t2m_gpt_step.onnx", workdir / "t2m_gpt_decoder.onnx"
+    fixed_path = workdir / "t2m_gpt_step_fixed.onnx"
     torch.manual_seed(0)
     gpt = MotionGPT(config).eval()
     export_gpt_step(gpt, step_path)
+    export_gpt_fixed_cache_step(gpt, fixed_path)
     export_decoder(MotionVQVAE(vq).eval(), np.zeros(vq.feat_dim, np.float32), np.ones(vq.feat_dim, np.float32),
                    decoder_path)
     params = sum(p.numel() for p in gpt.parameters()) / 1e6
@@ -312,7 +331,7 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
                 f"{config.embed}, {params:.0f}M parameters", 50,
                 onnx_gpt(step_path, config.n_layer, config.n_head, config.head_dim, config.length_conditioning, dim,
                          50, config.max_tokens, config.end_id),
-                torch_gpt(config, dim, 50), decoder_path)
+                torch_gpt(config, dim, 50), decoder_path, fixed=fixed_gpt(fixed_path, config, dim, 50))
 
 
 def release_momask_case(workdir: Path, tiny: bool) -> Case:
@@ -387,8 +406,21 @@ def decode_ms(decoder: Any, codes: np.ndarray, repeats: int) -> float:
     return median_ms(lambda: decoder.run(None, {"codes": codes}), repeats)
 
 
+def agreement(case: Case, samplers: dict[str, Generate | None], notes: list[str]) -> None:
+    """How many of the fixed-cache column's codes (batch 4) equal the I/O binding column's: the check, on the device,
+    that the captured graphs compute the same steps (tests/service/test_graphed_step.py checks it on the CPU)."""
+    fixed = next((g for method, g in samplers.items() if "fixed cache" in method and g is not None), None)
+    bound = next((g for method, g in samplers.items() if method.endswith("I/O binding") and g is not None), None)
+    if fixed is None or bound is None:
+        return
+    want, got = bound(4), fixed(4)
+    same = got == want if got.shape == want.shape else np.zeros(1, bool)
+    notes.append(f"- {case.label}: fixed-cache codes equal to the I/O binding ones: {int(same.sum())} of "
+                 f"{want.size} (batch 4, same seeds)")
+
+
 def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok: bool, torch_ok: bool,
-               failures: list[str]) -> list[Row]:
+               failures: list[str], notes: list[str]) -> list[Row]:
     """The case's rows; a method that cannot be built or run is reported in `failures`, the others go on."""
     from t2m.service.engine.execution import Execution
 
@@ -403,6 +435,10 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
             lambda: case.onnx(Execution(providers, io_binding="off"))
     elif ort_ok:
         makers[f"onnxruntime {device}{graphs}"] = lambda: case.onnx(Execution(providers))
+    if ort_ok and case.fixed is not None:
+        fixed = case.fixed
+        makers[f"onnxruntime {device}{graphs}, fixed cache{' + CUDA graphs' if device == 'cuda' else ''}"] = \
+            lambda: fixed(device)
     if torch_ok and case.torch is not None:
         def make_torch() -> Generate:
             generate = case.torch(torch.device(device))  # type: ignore[misc]
@@ -414,6 +450,7 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
         makers[f"PyTorch eager {device}{' fp16 autocast' if variant.half else ''}"] = make_torch
     decoder = attempt(failures, f"{case.label} decoder.onnx", lambda: session(case.decoder, Execution(providers)))
     samplers = {method: attempt(failures, f"{case.label} {method}", make) for method, make in makers.items()}
+    agreement(case, samplers, notes)
     sync = torch.cuda.synchronize if device == "cuda" and torch_ok else (lambda: None)
     rows = []
     for batch in batches:
@@ -522,7 +559,8 @@ def main(argv: list[str] | None = None) -> int:
             case = attempt(failures, name, builders[name])
             if case is not None:
                 notes.append(f"- {case.label}: {case.note} (built in {time.perf_counter() - built:.0f} s)")
-                case_rows = bench_case(case, args.device, args.batches, args.repeats, ort_ok, torch_ok, failures)
+                case_rows = bench_case(case, args.device, args.batches, args.repeats, ort_ok, torch_ok, failures,
+                                       notes)
                 rows += case_rows
                 print("\n".join(table(case_rows)[2:]), file=sys.stderr, flush=True)   # a cut-off run keeps them
                 write_record(args.out, machine(args.device), missing, failures, notes, rows)

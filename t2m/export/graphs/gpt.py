@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from t2m.export.graphs.export import export_graph
+from t2m.model.networks.fixed_cache import empty_fixed_cache, fixed_cache_step
 from t2m.model.networks.gpt import MotionGPT
 
 
@@ -74,4 +75,33 @@ def export_gpt_step(gpt: MotionGPT, path: str | Path) -> Path:
     return export_graph(
         graph, tuple(inputs.values()), path, input_names=list(inputs), output_names=["logits", "present_kv"],
         dynamic_axes=dynamic,
+    )
+
+
+class GptFixedCacheStepGraph(nn.Module):
+    """fixed_cache_step (t2m/model/networks/fixed_cache.py) with a length input, or without one."""
+
+    def __init__(self, gpt: MotionGPT) -> None:
+        super().__init__()
+        self.gpt = gpt
+
+    def forward(self, cond, token, position, *rest):
+        length, past_kv = rest if self.gpt.config.length_conditioning else (None, *rest)
+        return fixed_cache_step(self.gpt, cond, token, position, length, past_kv)
+
+
+def export_gpt_fixed_cache_step(gpt: MotionGPT, path: str | Path, capacity: int | None = None) -> Path:
+    """Write gpt_step_fixed.onnx: the step over a cache of `capacity` positions (block_size by default), each row at
+    its own position [B]; only the batch is dynamic (docs/gpu.md, "CUDA graphs")."""
+    gpt = gpt.eval()
+    inputs = example_step_inputs(gpt)
+    inputs["position"] = torch.tensor([3, 0], dtype=torch.long)        # rows at different positions
+    inputs["past_kv"] = torch.randn_like(empty_fixed_cache(gpt, 2, capacity))
+    dynamic: dict[str, dict[int, str]] = {name: {0: "batch"} for name in ("cond", "token", "position", "length")
+                                          if name in inputs}
+    dynamic["logits"] = {0: "batch"}
+    dynamic["past_kv"] = dynamic["present_kv"] = {2: "batch"}
+    return export_graph(
+        GptFixedCacheStepGraph(gpt), tuple(inputs.values()), path, input_names=list(inputs),
+        output_names=["logits", "present_kv"], dynamic_axes=dynamic,
     )

@@ -1,0 +1,127 @@
+"""gpt_step_fixed.onnx run from fixed device buffers, so that onnxruntime can capture a step as a CUDA graph and
+replay it.
+
+Why: a release-size GPT step is ~500 small kernels, each launched from the host; on an H100 that launch work, not
+arithmetic, is the step's 3.1-3.6 ms (docs/gpu.md). A CUDA graph replays all of a step's kernels with one launch,
+but only if every step has the same shapes and the same buffer addresses. So:
+- the graph's cache has a fixed capacity (t2m/model/networks/fixed_cache.py) and each row its own position;
+- a cohort gets one `FixedCache`: its inputs, its logits and two cache buffers live on the device for its whole
+  life; a step reads one cache buffer and writes the other, the next step the other way round, so a cohort uses two
+  captured graphs (one per direction), each with fixed addresses;
+- rows that finish are not removed (that would change the batch): `keep_rows` only forgets them; they go on being
+  computed, unread, until the cohort ends, and the finished cohort's buffers (and its graphs) serve the next cohort
+  of the same batch size.
+
+The same class runs on the CPU provider without graphs, which is how tests/service/test_graphed_step.py checks its
+codes against the plain step's. Sampling stays on the host (the request's numpy generator), so a seed gives the same
+motion on either device, as far as the float sums agree.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from t2m.service.engine.bound_step import session_device
+
+__all__ = ["FixedCache", "FixedCacheGptStep", "fixed_cache_session"]
+
+
+def fixed_cache_session(path: str | Path, providers: list[str], cuda_graph: bool,
+                        options: ort.SessionOptions | None = None) -> ort.InferenceSession:
+    """A session for gpt_step_fixed.onnx; with `cuda_graph` the CUDA provider captures and replays its steps."""
+    named: list[Any] = [(name, {"enable_cuda_graph": "1"}) if cuda_graph and name == "CUDAExecutionProvider" else name
+                        for name in providers]
+    return ort.InferenceSession(str(path), sess_options=options, providers=named)
+
+
+@dataclass
+class FixedCache:
+    """One cohort's device buffers: the step's inputs, its logits and the two cache buffers, plus which physical
+    rows the loop still reads (`rows`) and which buffer the next step reads (`parity`)."""
+
+    batch: int
+    host: dict[str, np.ndarray]
+    device: dict[str, ort.OrtValue]
+    bindings: tuple[Any, Any]
+    graph_ids: tuple[int, int]
+    rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    parity: int = 0
+
+
+class FixedCacheGptStep:
+    """The GPT loop's step (t2m.decoding.gpt.GptStep) over gpt_step_fixed.onnx; see the module docstring."""
+
+    _graph_ids = itertools.count(1)     # onnxruntime's graph ids are per session; 0 is reserved, -1 means none
+
+    def __init__(self, session: ort.InferenceSession, n_layer: int, n_head: int, head_dim: int, capacity: int,
+                 has_length_input: bool, cuda_graph: bool = False) -> None:
+        self.session, self.has_length_input, self.cuda_graph = session, has_length_input, cuda_graph
+        self.cache_shape = (n_layer, 2, -1, n_head, capacity, head_dim)
+        self.device = session_device(session)
+        inputs = {value.name: value for value in session.get_inputs()}
+        self.text_dim = int(inputs["cond"].shape[1])
+        self.vocabulary = int(session.get_outputs()[0].shape[1])
+        self._free: dict[int, list[FixedCache]] = {}
+
+    def empty_cache(self, batch: int) -> FixedCache:
+        """A cohort's buffers: a finished cohort's of the same batch size when there is one, else new ones."""
+        pool = self._free.setdefault(batch, [])
+        cache = pool.pop() if pool else self._new_cache(batch)
+        cache.rows, cache.parity = np.arange(batch), 0
+        return cache
+
+    def _new_cache(self, batch: int) -> FixedCache:
+        shape = list(self.cache_shape)
+        shape[2] = batch
+        host: dict[str, np.ndarray] = {"cond": np.zeros((batch, self.text_dim), np.float32),
+                                       "token": np.zeros(batch, np.int64), "position": np.zeros(batch, np.int64)}
+        if self.has_length_input:
+            host["length"] = np.zeros(batch, np.int64)
+        device = {name: ort.OrtValue.ortvalue_from_numpy(value, self.device, 0) for name, value in host.items()}
+        caches = [ort.OrtValue.ortvalue_from_numpy(np.zeros(shape, np.float32), self.device, 0) for _ in range(2)]
+        device["logits"] = ort.OrtValue.ortvalue_from_numpy(np.zeros((batch, self.vocabulary), np.float32),
+                                                             self.device, 0)
+        bindings = []
+        for past, present in ((caches[0], caches[1]), (caches[1], caches[0])):
+            binding = self.session.io_binding()
+            for name in host:
+                binding.bind_ortvalue_input(name, device[name])
+            binding.bind_ortvalue_input("past_kv", past)
+            binding.bind_ortvalue_output("logits", device["logits"])
+            binding.bind_ortvalue_output("present_kv", present)
+            bindings.append(binding)
+        return FixedCache(batch, host, device, (bindings[0], bindings[1]),
+                          (next(self._graph_ids), next(self._graph_ids)))
+
+    def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
+                 past: FixedCache) -> tuple[np.ndarray, FixedCache]:
+        """(cond [n, Dt], previous token [n], position, length [n], the cohort's cache) for its n live rows ->
+        (logits [n, V+1], the same cache, one position further)."""
+        rows, host = past.rows, past.host
+        host["cond"][rows], host["token"][rows] = cond, token
+        host["position"][:] = position
+        if self.has_length_input:
+            host["length"][rows] = length
+        for name, value in host.items():
+            past.device[name].update_inplace(value)
+        options = None
+        if self.cuda_graph:
+            options = ort.RunOptions()
+            options.add_run_config_entry("gpu_graph_id", str(past.graph_ids[past.parity]))
+        self.session.run_with_iobinding(past.bindings[past.parity], options)
+        past.parity ^= 1
+        return past.device["logits"].numpy()[rows], past
+
+    def keep_rows(self, past: FixedCache, keep: np.ndarray) -> FixedCache:
+        """Forget the rows where `keep` is false (they go on being computed, unread); a cohort with none left gives
+        its buffers back for the next cohort of its batch size."""
+        was_live = len(past.rows) > 0
+        past.rows = past.rows[keep]
+        if was_live and not len(past.rows):
+            self._free[past.batch].append(past)
+        return past
