@@ -78,6 +78,7 @@ class Case:
     decoder: Path
     kv_cache: bool = True                       # False: whole-map passes (masked), nothing to bind
     fixed: Callable[[str], Generate] | None = None  # device -> generate over gpt_step_fixed.onnx (CUDA graphs)
+    host: Callable[[int], Generate] | None = None   # largest batch -> the loop over instant steps (host_loop.py)
 
 
 GRAPHS = ("shipped", "float32", "fp16", "fp16-fused")
@@ -243,6 +244,7 @@ def embedded_gpt_case() -> Case:
 
 
 def embedded_hifigpt_case() -> Case:
+    from benchmarks.host_loop import default_loop
     from t2m.bundles import DEFAULT_BUNDLE
     from t2m.model.networks.hifigpt import HiFiGPTConfig
 
@@ -277,7 +279,7 @@ def embedded_hifigpt_case() -> Case:
     quantized = ", ".join(sorted({v for v in manifest.get("quantization", {}).values() if v})) or "float32"
     return Case("default (t2m/bundles/default, T2M-HiFiGPT)", f"{manifest['name']}: step graphs {quantized}; "
                 f"{steps} steps x (1 temporal + {depth} residual calls)", steps, make_onnx, make_torch,
-                DEFAULT_BUNDLE / "decoder.onnx")
+                DEFAULT_BUNDLE / "decoder.onnx", host=lambda largest: default_loop(largest)[0])
 
 
 def onnx_masked(masked_path: Path, residual_path: Path | None, columns: int, mask_id: int, layers: int, pad_id: int,
@@ -435,6 +437,9 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
             lambda: case.onnx(Execution(providers, io_binding="off"))
     elif ort_ok:
         makers[f"onnxruntime {device}{graphs}"] = lambda: case.onnx(Execution(providers))
+    if case.host is not None:
+        host, largest = case.host, max(batches)
+        makers["host loop alone (instant network)"] = lambda: host(largest)
     if ort_ok and case.fixed is not None:
         fixed = case.fixed
         makers[f"onnxruntime {device}{graphs}, fixed cache{' + CUDA graphs' if device == 'cuda' else ''}"] = \

@@ -116,3 +116,16 @@ def test_gpu_profile_sums_onnxruntimes_profile_per_operator_on_cpu(tmp_path, cap
     assert "MatMul (CPUExecutionProvider)" in nodes and all(entry["calls"] > 0 for entry in nodes.values())
     assert 0 < sum(entry["ms"] for entry in nodes.values()) <= summary["runs_ms"]
     assert "| operator (provider) | ms | calls | us per call |" in capsys.readouterr().out
+
+
+def test_host_loop_prints_one_row_per_batch_and_draw_group():
+    """benchmarks/host_loop.py (the default model's loop over instant steps; gpu_suite's "host loop alone" row):
+    one table row per batch and DRAW_GROUP size compared. Figures are printed, never asserted."""
+    result = subprocess.run(
+        [sys.executable, str(REPO / "benchmarks" / "host_loop.py"), "--batches", "1,3", "--repeats", "1",
+         "--draw-groups", "2,0"], cwd=REPO, capture_output=True, text=True, timeout=120,
+        env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
+    assert result.returncode == 0, result.stderr[-2000:]
+    rows = [line.split("|")[2:4] for line in result.stdout.splitlines() if line.startswith("| default")]
+    assert [(group.strip(), batch.strip()) for group, batch in rows] == [("2", "1"), ("all", "1"), ("2", "3"),
+                                                                         ("all", "3")]

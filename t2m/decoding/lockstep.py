@@ -159,12 +159,46 @@ def guided(job: SamplingJob, active: Sequence[int], logits: np.ndarray, rows: Ro
     return guided_logits(chosen, logits[[rows.null[s] for s in active]].astype(np.float64), job.guidance)
 
 
+DRAW_GROUP = 64      # segments per batched draw (see draw_for_jobs)
+
+
+def _job_groups(going: Sequence[tuple[SamplingJob, Sequence[int]]],
+                size: int) -> Iterator[tuple[list[tuple[SamplingJob, Sequence[int]]], int, int]]:
+    """Runs of consecutive whole jobs of at least `size` segments (the last may be smaller): (the run, the index of
+    its first segment among all of `going`'s, one past its last)."""
+    group: list[tuple[SamplingJob, Sequence[int]]] = []
+    start = count = 0
+    for job, active in going:
+        group.append((job, active))
+        count += len(active)
+        if count - start >= size:
+            yield group, start, count
+            group, start = [], count
+    if group:
+        yield group, start, count
+
+
 def draw_for_jobs(logits: np.ndarray, rows: Rows, going: Sequence[tuple[SamplingJob, Sequence[int]]],
                   forbid: tuple[np.ndarray, int] | None = None) -> list[np.ndarray]:
     """Per (job, active segments) of `going`, the class drawn for each segment: its cond row's logits guided with
     its null row by the job's scale (as `guided`), then one draw each with the job's options and generator, all jobs
     in one batched draw (tokens.draw_tokens_of_jobs: the same numbers as job by job). `forbid` = (mask over the
-    active segments in order, class): that class is impossible where the mask is true (the GPT's End rule)."""
+    active segments in order, class): that class is impossible where the mask is true (the GPT's End rule).
+
+    Many segments are drawn in groups of whole jobs of about DRAW_GROUP segments: the same numbers (each row's
+    operations and each job's generator are its own), but a group's float64 arrays stay in the CPU's cache. At a
+    GPU's batch sizes that matters: the default model's loop at 1,024 motions spent 1.6x less time on the host, the
+    same at 256 and fewer (benchmarks/host_loop.py, docs/measurements/host_loop_2026-11-27.log)."""
+    drawn: list[np.ndarray] = []
+    for group, start, stop in _job_groups(going, DRAW_GROUP):
+        mask = None if forbid is None else (np.asarray(forbid[0], dtype=bool)[start:stop], forbid[1])
+        drawn += _draw_together(logits, rows, group, mask)
+    return drawn
+
+
+def _draw_together(logits: np.ndarray, rows: Rows, going: Sequence[tuple[SamplingJob, Sequence[int]]],
+                   forbid: tuple[np.ndarray, int] | None) -> list[np.ndarray]:
+    """draw_for_jobs for one group of jobs: one batched draw."""
     segments = [s for _, active in going for s in active]
     if not segments:
         return [np.zeros(0, dtype=np.int64) for _ in going]

@@ -61,3 +61,28 @@ def test_guided_jobs_drawn_together_match_each_job_alone(seed):
                               job.top_k, job.rng)
         assert np.array_equal(together[j], alone), j
         start += n
+
+
+def test_many_jobs_drawn_in_groups_give_one_draws_numbers(monkeypatch):
+    """Above DRAW_GROUP segments the draw goes in runs of whole jobs (to stay in the CPU's cache): the same codes
+    as one draw over all of them, End rule included, for jobs of 1-3 segments with and without guidance."""
+    import t2m.decoding.lockstep as lockstep
+
+    rng = np.random.default_rng(7)
+    sizes = rng.integers(1, 4, size=120).tolist()
+    owner = np.repeat(np.arange(sum(sizes)), 2)          # a cond and a null row per segment
+    rows = lockstep.row_maps(owner)
+    logits = (rng.standard_normal((len(owner), 33)) * 3).astype(np.float32)
+    mask = rng.random(sum(sizes)) < 0.5
+
+    def draw(group: int) -> list[list[int]]:
+        monkeypatch.setattr(lockstep, "DRAW_GROUP", group)
+        starts = np.cumsum([0, *sizes[:-1]]).tolist()
+        going = [(SamplingJob.of(np.zeros((n, 4), np.float32), [5] * n, max_tokens=9, guidance=(1.0, 3.0)[j % 2],
+                                 temperature=0.9, top_k=(None, 8)[j % 3 == 0], rng=j), list(range(s, s + n)))
+                 for j, (n, s) in enumerate(zip(sizes, starts))]
+        return [codes.tolist() for codes in draw_for_jobs(logits, rows, going, forbid=(mask, 32))]
+
+    one = draw(10_000)
+    assert draw(16) == one and draw(5) == one
+    assert draw(1) == one                                  # every job its own draw

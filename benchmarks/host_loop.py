@@ -1,0 +1,113 @@
+"""What the decoding loops cost on the host alone: the GPT and T2M-HiFiGPT loops (t2m/decoding) with steps that
+answer instantly (fixed logits of the real sizes), so everything timed is sampling, guidance, bookkeeping and
+Python. Why: on a GPU the network calls of a large batch are cheap, and a loop that spends longer on the host than
+the GPU spends on its calls caps motions per second whatever the GPU does (issue 29's goal: the default model at
+1,000 10-s motions/s). benchmarks/gpu_suite.py adds the same instant steps as a "host loop alone" row, so the cap is
+measured on the device's own CPU beside its GPU rows.
+
+    PYTHONPATH=. python benchmarks/host_loop.py [--batches 1,64,256,1024] [--repeats 3] [--draw-groups 128,0]
+
+--draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows, the
+way the loops drew before 2026-11-27), alternating within each repeat.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+
+class _Instant:
+    """Fixed outputs for up to `rows` rows (random, so that sampling does real work), no cache."""
+
+    def __init__(self, rows: int, width: int, seed: int) -> None:
+        self.values = np.random.default_rng(seed).normal(size=(rows, width)).astype(np.float32)
+
+    def empty_cache(self, batch: int) -> np.ndarray:
+        return np.zeros(0, np.float32)
+
+    def keep_rows(self, past: Any, keep: np.ndarray) -> Any:
+        return past
+
+
+class InstantGptStep(_Instant):
+    """t2m.decoding.gpt.GptStep answering logits [B, K+1] at once."""
+
+    def __call__(self, cond, token, position, length, past):
+        return self.values[: len(cond)], past
+
+
+class InstantTemporalStep(_Instant):
+    """t2m.decoding.hifigpt.TemporalStep answering (context, a low stop logit) at once."""
+
+    def __init__(self, rows: int, width: int, depth: int) -> None:
+        super().__init__(rows, width, 1)
+        self.depth = depth
+
+    def __call__(self, cond, codes, position, length, past):
+        return self.values[: len(cond)], np.full(len(cond), -8.0, np.float32), past
+
+
+class InstantResidualStep(_Instant):
+    """t2m.decoding.hifigpt.ResidualGptStep answering logits [B, K] at once."""
+
+    def __call__(self, context, code, depth, past):
+        return self.values[: len(context)], past
+
+
+def default_loop(max_batch: int) -> tuple[Callable[[int], np.ndarray], int]:
+    """The embedded default model's loop (its sizes from the manifest) over instant steps; its steps per motion."""
+    from benchmarks.gpu_suite import hifigpt_generate
+    from t2m.bundles import DEFAULT_BUNDLE
+
+    manifest = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())
+    h, steps = manifest["hifigpt"], 25
+    rows = 2 * max_batch
+    temporal = InstantTemporalStep(rows, h["n_head"] * h["head_dim"], manifest["residual_layers"])
+    residual = InstantResidualStep(rows, manifest["codebook_size"], 2)
+    return hifigpt_generate(temporal, residual, manifest["text_encoder"]["dim"], steps, manifest["max_tokens"]), steps
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
+    parser.add_argument("--batches", default="1,64,256,1024")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--draw-groups", default=None, help="DRAW_GROUP sizes to compare (0 = all rows at once)")
+    args = parser.parse_args(argv)
+    from t2m.decoding import lockstep
+
+    batches = [int(b) for b in args.batches.split(",")]
+    groups = [int(g) for g in args.draw_groups.split(",")] if args.draw_groups else [lockstep.DRAW_GROUP]
+    generate, steps = default_loop(max(batches))
+    print("| loop | draw group | batch | ms per batch of 10 s motions | host cap, motions / s |\n"
+          "| --- | ---: | ---: | ---: | ---: |")
+    for batch in batches:
+        generate(batch)
+        times: dict[int, list[float]] = {group: [] for group in groups}
+        for _ in range(args.repeats):
+            for group in groups:
+                lockstep.DRAW_GROUP = group or 10**9
+                started = time.perf_counter()
+                generate(batch)
+                times[group].append(time.perf_counter() - started)
+        for group in groups:
+            ms = 1000 * statistics.median(times[group])
+            print(f"| default (T2M-HiFiGPT, {steps} steps) | {group or 'all'} | {batch} | {ms:.0f} | "
+                  f"{1000 * batch / ms:.0f} |", flush=True)
+    print(f"- median of {args.repeats}; instant network calls; guidance 3 (a cond and a null row per motion)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
