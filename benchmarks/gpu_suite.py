@@ -77,7 +77,8 @@ class Case:
     torch: Callable[[torch.device], Generate] | None
     decoder: Path
     kv_cache: bool = True                       # False: whole-map passes (masked), nothing to bind
-    fixed: Callable[[str], Generate] | None = None  # device -> generate over gpt_step_fixed.onnx (CUDA graphs)
+    graphed: Callable[[str], Generate] | None = None  # device -> generate with CUDA graphs (engine/graphed_step.py)
+    graphed_label: str = "CUDA graphs"
     host: Callable[[int], Generate] | None = None   # largest batch -> the loop over instant steps (host_loop.py)
 
 
@@ -207,11 +208,11 @@ def fixed_gpt(step_path: Path, config: Any, dim: int, tokens: int) -> Callable[[
     def make(device: str) -> Generate:
         from t2m.service.engine.bundle import session_options
         from t2m.service.engine.execution import Execution
-        from t2m.service.engine.graphed_step import FixedCacheGptStep, fixed_cache_session
+        from t2m.service.engine.graphed_step import FixedCacheGptStep, graph_session
 
         served = GRAPH_VARIANT(step_path) if GRAPH_VARIANT is not None else step_path
         providers = Execution(("cuda",) if device == "cuda" else ("cpu",)).ort_providers
-        session = fixed_cache_session(served, providers, cuda_graph=device == "cuda", options=session_options(0, 1))
+        session = graph_session(served, providers, cuda_graph=device == "cuda", options=session_options(0, 1))
         step = FixedCacheGptStep(session, config.n_layer, config.n_head, config.head_dim, config.block_size,
                                  config.length_conditioning, cuda_graph=device == "cuda")
         return gpt_generate(step, dim, tokens, config.max_tokens, config.end_id)
@@ -294,18 +295,40 @@ def onnx_masked(masked_path: Path, residual_path: Path | None, columns: int, mas
     return make
 
 
+def graphed_masked(masked_path: Path, residual_path: Path | None, columns: int, mask_id: int, layers: int,
+                   pad_id: int, dim: int, rows: int, passes: int) -> Callable[[str], Generate]:
+    """The masked loop with its calls replayed as CUDA graphs, one per input shape (engine/graphed_step.py's
+    GraphedSession; on 'cpu' the same buffers, no capture)."""
+    def make(device: str) -> Generate:
+        from t2m.service.engine.bundle import session_options
+        from t2m.service.engine.execution import Execution
+        from t2m.service.engine.graphed_step import GraphedSession, graph_session
+        from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+
+        providers = Execution(("cuda",) if device == "cuda" else ("cpu",)).ort_providers
+
+        def graphed(path: Path) -> Any:
+            served = GRAPH_VARIANT(path) if GRAPH_VARIANT is not None else path
+            return GraphedSession(graph_session(served, providers, cuda_graph=device == "cuda",
+                                                options=session_options(0, 1)), cuda_graph=device == "cuda")
+
+        masked = OnnxMaskedStep(graphed(masked_path), columns, mask_id)
+        residual = None if residual_path is None else OnnxResidualStep(graphed(residual_path), layers, pad_id)
+        return masked_generate(masked, residual, dim, rows, passes)
+    return make
+
+
 def embedded_masked_case() -> Case:
     from t2m.bundles import EMBEDDED_BUNDLES
 
     MASKED_BUNDLE = EMBEDDED_BUNDLES["masked"]
     manifest = json.loads((MASKED_BUNDLE / "manifest.json").read_text())
     m, layers = manifest["masked"], manifest["residual_layers"]
+    loop = (MASKED_BUNDLE / "masked.onnx", MASKED_BUNDLE / "residual.onnx" if layers > 1 else None, m["columns"],
+            m["mask_id"], layers, m["pad_id"], manifest["text_encoder"]["dim"], 50, m["steps"])
     return Case("masked (t2m/bundles/masked)", f"{manifest['name']}: {m['steps']} mask passes + {layers - 1} "
                 "residual passes; no PyTorch column (transformer sizes not in the manifest)", m["steps"] + layers - 1,
-                onnx_masked(MASKED_BUNDLE / "masked.onnx", MASKED_BUNDLE / "residual.onnx" if layers > 1 else None,
-                            m["columns"], m["mask_id"], layers, m["pad_id"], manifest["text_encoder"]["dim"], 50,
-                            m["steps"]),
-                None, MASKED_BUNDLE / "decoder.onnx", kv_cache=False)
+                onnx_masked(*loop), None, MASKED_BUNDLE / "decoder.onnx", kv_cache=False, graphed=graphed_masked(*loop))
 
 
 def release_gpt_case(workdir: Path, tiny: bool) -> Case:
@@ -333,7 +356,8 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
                 f"{config.embed}, {params:.0f}M parameters", 50,
                 onnx_gpt(step_path, config.n_layer, config.n_head, config.head_dim, config.length_conditioning, dim,
                          50, config.max_tokens, config.end_id),
-                torch_gpt(config, dim, 50), decoder_path, fixed=fixed_gpt(fixed_path, config, dim, 50))
+                torch_gpt(config, dim, 50), decoder_path, graphed=fixed_gpt(fixed_path, config, dim, 50),
+                graphed_label="fixed cache + CUDA graphs")
 
 
 def release_momask_case(workdir: Path, tiny: bool) -> Case:
@@ -369,12 +393,11 @@ def release_momask_case(workdir: Path, tiny: bool) -> Case:
                                TorchResidualStep(residual.to(device), device), dim, rows, passes)
 
     params = sum(p.numel() for p in [*masked.parameters(), *residual.parameters()]) / 1e6
+    loop = (paths["masked"], paths["residual"], 1, masked.config.mask_id, layers, residual.pad_id, dim, rows, passes)
     return Case("momask-release" + (" (--tiny)" if tiny else ""), f"random weights, masked + residual transformers "
                 f"{config.n_layer} layers x {config.latent} ({params:.0f}M parameters), {rows} rows (196 frames), "
                 f"{passes} mask passes + {layers - 1} residual passes", passes + layers - 1,
-                onnx_masked(paths["masked"], paths["residual"], 1, masked.config.mask_id, layers, residual.pad_id,
-                            dim, rows, passes),
-                make_torch, paths["decoder"], kv_cache=False)
+                onnx_masked(*loop), make_torch, paths["decoder"], kv_cache=False, graphed=graphed_masked(*loop))
 
 
 def what_is_missing(device: str) -> tuple[bool, bool, list[str]]:
@@ -409,16 +432,18 @@ def decode_ms(decoder: Any, codes: np.ndarray, repeats: int) -> float:
 
 
 def agreement(case: Case, samplers: dict[str, Generate | None], notes: list[str]) -> None:
-    """How many of the fixed-cache column's codes (batch 4) equal the I/O binding column's: the check, on the device,
-    that the captured graphs compute the same steps (tests/service/test_graphed_step.py checks it on the CPU)."""
-    fixed = next((g for method, g in samplers.items() if "fixed cache" in method and g is not None), None)
-    bound = next((g for method, g in samplers.items() if method.endswith("I/O binding") and g is not None), None)
-    if fixed is None or bound is None:
+    """How many of the CUDA-graph column's codes (batch 4) equal the plain onnxruntime column's (I/O binding where
+    there is a cache): the check, on the device, that the captured graphs compute the same calls
+    (tests/service/test_graphed_step.py checks it on the CPU)."""
+    graphed = next((g for method, g in samplers.items() if case.graphed_label in method and g is not None), None)
+    plain = next((g for method, g in samplers.items() if method.startswith("onnxruntime")
+                  and case.graphed_label not in method and "numpy caches" not in method and g is not None), None)
+    if case.graphed is None or graphed is None or plain is None:
         return
-    want, got = bound(4), fixed(4)
+    want, got = plain(4), graphed(4)
     same = got == want if got.shape == want.shape else np.zeros(1, bool)
-    notes.append(f"- {case.label}: fixed-cache codes equal to the I/O binding ones: {int(same.sum())} of "
-                 f"{want.size} (batch 4, same seeds)")
+    notes.append(f"- {case.label}, {case.graphed_label}: its codes equal to the plain onnxruntime ones: "
+                 f"{int(same.sum())} of {want.size} (batch 4, same seeds)")
 
 
 def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok: bool, torch_ok: bool,
@@ -440,10 +465,9 @@ def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok
     if case.host is not None:
         host, largest = case.host, max(batches)
         makers["host loop alone (instant network)"] = lambda: host(largest)
-    if ort_ok and case.fixed is not None:
-        fixed = case.fixed
-        makers[f"onnxruntime {device}{graphs}, fixed cache{' + CUDA graphs' if device == 'cuda' else ''}"] = \
-            lambda: fixed(device)
+    if ort_ok and case.graphed is not None:
+        graphed, label = case.graphed, case.graphed_label if device == "cuda" else f"{case.graphed_label}, no capture"
+        makers[f"onnxruntime {device}{graphs}, {label}"] = lambda: graphed(device)
     if torch_ok and case.torch is not None:
         def make_torch() -> Generate:
             generate = case.torch(torch.device(device))  # type: ignore[misc]

@@ -28,12 +28,15 @@ def test_gpu_suite_runs_on_cpu_with_toy_sizes(tmp_path):
     methods = {(row["model"].split(" ")[0], row["method"]) for row in record["rows"]}
     assert methods == {("t2m-gpt-release", "onnxruntime cpu, I/O binding"),
                        ("t2m-gpt-release", "onnxruntime cpu, numpy caches"),
-                       ("t2m-gpt-release", "onnxruntime cpu, fixed cache"),
+                       ("t2m-gpt-release", "onnxruntime cpu, fixed cache + CUDA graphs, no capture"),
+                       ("momask-release", "onnxruntime cpu, CUDA graphs, no capture"),
                        ("t2m-gpt-release", "PyTorch eager cpu"),
                        ("momask-release", "onnxruntime cpu"), ("momask-release", "PyTorch eager cpu")}
     assert all(row["batch"] == 2 and row["ms_motion"] > 0 for row in record["rows"]) and not record["failures"]
-    agreement = [note for note in record["notes"] if "fixed-cache codes" in note]
-    assert len(agreement) == 1 and "equal to the I/O binding ones: 200 of 200" in agreement[0], record["notes"]
+    agreement = sorted(note for note in record["notes"] if "its codes equal to the plain onnxruntime ones" in note)
+    assert len(agreement) == 2, record["notes"]
+    assert "momask-release" in agreement[0] and ": 1176 of 1176 (batch 4" in agreement[0]  # 4 x 49 rows x 6 layers
+    assert "t2m-gpt-release" in agreement[1] and ": 200 of 200 (batch 4" in agreement[1]   # 4 x 50 tokens
     table = [line for line in result.stdout.splitlines() if line.startswith("| ")]
     assert table[0].startswith("| model | batch | method") and len(table) == 1 + 1 + len(record["rows"])
 

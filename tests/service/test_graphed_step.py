@@ -17,7 +17,7 @@ from t2m.export.graphs.export import ort_session
 from t2m.export.graphs.gpt import export_gpt_fixed_cache_step, export_gpt_step
 from t2m.model.networks.fixed_cache import empty_fixed_cache, fixed_cache_step
 from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.service.engine.graphed_step import FixedCacheGptStep, fixed_cache_session
+from t2m.service.engine.graphed_step import FixedCacheGptStep, GraphedSession, graph_session
 from t2m.service.engine.onnx_step import OnnxGptStep
 
 MAX_TOKENS = 12
@@ -39,8 +39,9 @@ def steps(request, tmp_path_factory):
     fixed_path = export_gpt_fixed_cache_step(gpt, folder / "gpt_step_fixed.onnx")
     c = gpt.config
     plain = OnnxGptStep(ort_session(plain_path), c.n_layer, c.n_head, c.head_dim, c.length_conditioning)
-    session = fixed_cache_session(fixed_path, ["CPUExecutionProvider"], cuda_graph=True, options=None)
-    fixed = FixedCacheGptStep(session, c.n_layer, c.n_head, c.head_dim, c.block_size, c.length_conditioning)
+    session = graph_session(fixed_path, ["CPUExecutionProvider"], cuda_graph=True, options=None)
+    fixed = FixedCacheGptStep(session, c.n_layer, c.n_head, c.head_dim, c.block_size, c.length_conditioning,
+                              cuda_graph=True)         # graph ids in the run options: the CPU provider ignores them
     return plain, fixed, fixed_path
 
 
@@ -118,3 +119,31 @@ def test_the_fixed_graph_has_what_a_cuda_graph_needs(steps):
             for value in [*model.graph.input, *model.graph.output]}
     assert dims["past_kv"] == dims["present_kv"] == [2, 2, "batch", 4, MAX_TOKENS + 1, 8]
     assert dims["position"] == ["batch"]
+
+
+def test_a_graphed_session_gives_the_sessions_outputs_with_buffers_per_shape(tmp_path):
+    """GraphedSession over the growing-cache graph: every call of a decode (a new past length each step, two batch
+    sizes) gives session.run's outputs; a shape seen before reuses its buffers (one bound call per shape)."""
+    gpt = _gpt(True)
+    c = gpt.config
+    path = export_gpt_step(gpt, tmp_path / "gpt_step.onnx")
+    plain = ort_session(path)
+    graphed = GraphedSession(graph_session(path, ["CPUExecutionProvider"], cuda_graph=True), cuda_graph=True)
+    rng = np.random.default_rng(0)
+    for _ in range(2):                          # the second decode replays the first one's shapes
+        for batch in (1, 3):
+            past = np.zeros((c.n_layer, 2, batch, c.n_head, 0, c.head_dim), np.float32)
+            for position in range(4):
+                feeds = {"cond": rng.normal(size=(batch, 16)).astype(np.float32),
+                         "token": rng.integers(0, 32, batch), "position": np.asarray([position]),
+                         "length": np.full(batch, 3), "past_kv": past}
+                want = plain.run(None, feeds)
+                got = graphed.run(None, feeds)
+                for a, b in zip(want, got):
+                    np.testing.assert_array_equal(b, a)
+                assert graphed.run(["logits"], feeds)[0].shape == (batch, 33)
+                past = got[1]
+    assert len(graphed._calls) == 2 * 4      # (batch, past length) pairs, bound once each
+    kept = graphed.run(None, feeds)[0]
+    graphed.run(None, {**feeds, "cond": feeds["cond"] + 1.0})   # the same shape: its buffers are overwritten...
+    np.testing.assert_array_equal(kept, plain.run(None, feeds)[0])   # ...but not what an earlier call returned

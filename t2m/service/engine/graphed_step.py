@@ -1,9 +1,9 @@
-"""gpt_step_fixed.onnx run from fixed device buffers, so that onnxruntime can capture a step as a CUDA graph and
-replay it.
+"""Step graphs run from fixed device buffers, so that onnxruntime can capture a call as a CUDA graph and replay it:
+gpt_step_fixed.onnx (`FixedCacheGptStep`) and any graph without a cache (`GraphedSession`, the masked family's).
 
 Why: a release-size GPT step is ~500 small kernels, each launched from the host; on an H100 that launch work, not
-arithmetic, is the step's 3.1-3.6 ms (docs/gpu.md). A CUDA graph replays all of a step's kernels with one launch,
-but only if every step has the same shapes and the same buffer addresses. So:
+arithmetic, is the step's 3.1-3.6 ms (docs/gpu.md). A CUDA graph replays all of a call's kernels with one launch,
+but only if every replay has the same shapes and the same buffer addresses. So, for the GPT step:
 - the graph's cache has a fixed capacity (t2m/model/networks/fixed_cache.py) and each row its own position;
 - a cohort gets one `FixedCache`: its inputs, its logits and two cache buffers live on the device for its whole
   life; a step reads one cache buffer and writes the other, the next step the other way round, so a cohort uses two
@@ -11,10 +11,11 @@ but only if every step has the same shapes and the same buffer addresses. So:
 - rows that finish are not removed (that would change the batch): `keep_rows` only forgets them; they go on being
   computed, unread, until the cohort ends, and the finished cohort's buffers (and its graphs) serve the next cohort
   of the same batch size.
+A graph without a cache needs only buffers per set of input shapes (`GraphedSession`).
 
-The same class runs on the CPU provider without graphs, which is how tests/service/test_graphed_step.py checks its
-codes against the plain step's. Sampling stays on the host (the request's numpy generator), so a seed gives the same
-motion on either device, as far as the float sums agree.
+The same classes run on the CPU provider (which ignores the graph ids), which is how tests/service/
+test_graphed_step.py checks their outputs against the plain sessions'. Sampling stays on the host (the request's
+numpy generator), so a seed gives the same motion on either device, as far as the float sums agree.
 """
 from __future__ import annotations
 
@@ -28,12 +29,13 @@ import onnxruntime as ort
 
 from t2m.service.engine.bound_step import session_device
 
-__all__ = ["FixedCache", "FixedCacheGptStep", "fixed_cache_session"]
+__all__ = ["FixedCache", "FixedCacheGptStep", "GraphedSession", "graph_session"]
 
 
-def fixed_cache_session(path: str | Path, providers: list[str], cuda_graph: bool,
-                        options: ort.SessionOptions | None = None) -> ort.InferenceSession:
-    """A session for gpt_step_fixed.onnx; with `cuda_graph` the CUDA provider captures and replays its steps."""
+def graph_session(path: str | Path, providers: list[str], cuda_graph: bool,
+                  options: ort.SessionOptions | None = None) -> ort.InferenceSession:
+    """A session whose CUDA provider, with `cuda_graph`, captures and replays runs (FixedCacheGptStep,
+    GraphedSession); the other providers as they are."""
     named: list[Any] = [(name, {"enable_cuda_graph": "1"}) if cuda_graph and name == "CUDAExecutionProvider" else name
                         for name in providers]
     return ort.InferenceSession(str(path), sess_options=options, providers=named)
@@ -125,3 +127,48 @@ class FixedCacheGptStep:
         if was_live and not len(past.rows):
             self._free[past.batch].append(past)
         return past
+
+
+class GraphedSession:
+    """`session.run` for graphs without a cache (the masked family's), replayed as a CUDA graph per set of input
+    shapes: the first call of a shape runs plainly to learn its output shapes, then that shape gets device buffers
+    for its inputs and outputs, bound once, and a graph id of its own. Each call copies its inputs into the buffers
+    and its outputs back. A drop-in for `InferenceSession.run(names, feeds)` in the steps of engine/onnx_step.py.
+
+    Every shape keeps its buffers and its captured graph for the session's life, so this suits loops whose shapes
+    repeat (a batch of 10 s motions: the same shapes at every pass), not a server's ever-new lengths."""
+
+    def __init__(self, session: ort.InferenceSession, cuda_graph: bool) -> None:
+        self.session, self.cuda_graph = session, cuda_graph
+        self.device = session_device(session)
+        self.output_names = [value.name for value in session.get_outputs()]
+        self._calls: dict[tuple, tuple[dict[str, ort.OrtValue], dict[str, ort.OrtValue], Any, int]] = {}
+        self._ids = itertools.count(1)
+
+    def _options(self, graph_id: int) -> ort.RunOptions | None:
+        if not self.cuda_graph:
+            return None
+        options = ort.RunOptions()
+        options.add_run_config_entry("gpu_graph_id", str(graph_id))
+        return options
+
+    def run(self, output_names: list[str] | None, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        feeds = {name: np.ascontiguousarray(value) for name, value in feeds.items()}
+        key = tuple((name, value.shape, value.dtype.str) for name, value in sorted(feeds.items()))
+        if key not in self._calls:
+            first = self.session.run(None, feeds, self._options(-1))     # -1: no capture, only the shapes
+            inputs = {name: ort.OrtValue.ortvalue_from_numpy(value, self.device, 0) for name, value in feeds.items()}
+            outputs = {name: ort.OrtValue.ortvalue_from_numpy(np.zeros_like(value), self.device, 0)
+                       for name, value in zip(self.output_names, first)}
+            binding = self.session.io_binding()
+            for name, value in inputs.items():
+                binding.bind_ortvalue_input(name, value)
+            for name, value in outputs.items():
+                binding.bind_ortvalue_output(name, value)
+            self._calls[key] = (inputs, outputs, binding, next(self._ids))
+        inputs, outputs, binding, graph_id = self._calls[key]
+        for name, value in feeds.items():
+            inputs[name].update_inplace(value)
+        self.session.run_with_iobinding(binding, self._options(graph_id))
+        # copies: on the CPU provider numpy() is a view of the buffer that the next call of this shape overwrites
+        return [np.array(outputs[name].numpy()) for name in (output_names or self.output_names)]
