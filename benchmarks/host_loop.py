@@ -1,5 +1,5 @@
-"""What the decoding loops cost on the host alone: the GPT and T2M-HiFiGPT loops (t2m/decoding) with steps that
-answer instantly (fixed logits of the real sizes), so everything timed is sampling, guidance, bookkeeping and
+"""What the decoding loop costs on the host alone: the default model's T2M-HiFiGPT loop (t2m/decoding) with steps
+that answer instantly (fixed outputs of the real sizes), so everything timed is sampling, guidance, bookkeeping and
 Python. Why: on a GPU the network calls of a large batch are cheap, and a loop that spends longer on the host than
 the GPU spends on its calls caps motions per second whatever the GPU does (issue 29's goal: the default model at
 1,000 10-s motions/s). benchmarks/gpu_suite.py adds the same instant steps as a "host loop alone" row, so the cap is
@@ -7,8 +7,9 @@ measured on the device's own CPU beside its GPU rows.
 
     PYTHONPATH=. python benchmarks/host_loop.py [--batches 1,64,256,1024] [--repeats 3] [--draw-groups 128,0]
 
---draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows, the
-way the loops drew before 2026-11-27), alternating within each repeat.
+--draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows),
+alternating within each repeat. To compare checkouts, copy this file into the other checkout's benchmarks/ and run
+both copies by turns: each times the loop of the checkout it lies in.
 """
 from __future__ import annotations
 
@@ -88,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     from t2m.decoding import lockstep
 
     batches = [int(b) for b in args.batches.split(",")]
-    groups = [int(g) for g in args.draw_groups.split(",")] if args.draw_groups else [lockstep.DRAW_GROUP]
+    default = getattr(lockstep, "DRAW_GROUP", 0)      # 0 in a checkout from before DRAW_GROUP
+    groups = [int(g) for g in args.draw_groups.split(",")] if args.draw_groups else [default]
     generate, steps = default_loop(max(batches))
     print("| loop | draw group | batch | ms per batch of 10 s motions | host cap, motions / s |\n"
           "| --- | ---: | ---: | ---: | ---: |")

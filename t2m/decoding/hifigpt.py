@@ -156,18 +156,20 @@ def sample_code_rows(temporal: TemporalStep, residual: ResidualGptStep, jobs: Se
 
 
 def depth_loop(residual: ResidualGptStep, context: np.ndarray, going: list[tuple[SamplingJob, list[int]]],
-                owner: np.ndarray, depth: int, on_step: Callable[[int], None] | None) -> dict[int, np.ndarray]:
-    """The R codes of this time step for every going segment (rows = `owner`, contexts in row order)."""
-    rows = lockstep.row_maps(owner)
-    chosen = {s: np.zeros(depth, dtype=np.int64) for _, active in going for s in active}
+               owner: np.ndarray, depth: int, on_step: Callable[[int], None] | None) -> dict[int, np.ndarray]:
+    """The R codes of this time step for every going segment (rows = `owner`, contexts in row order). The R draws
+    share one lockstep.DrawPlan: the same segments are drawn at every depth, and each job's R uniforms come from one
+    call of its generator."""
+    plan = lockstep.DrawPlan(lockstep.row_maps(owner), going, draws=depth)
+    index = {s: i for i, s in enumerate(plan.segments)}
+    row_segment = np.asarray([index[int(s)] for s in owner], dtype=np.intp)   # each row's segment, in plan order
+    codes = np.zeros((len(plan.segments), depth), dtype=np.int64)
     past = residual.empty_cache(len(owner))
     code_in = np.zeros(len(owner), dtype=np.int64)
     for d in range(depth):
         logits, past = residual(context, code_in, d, past)
         if on_step is not None:
             on_step(len(owner))
-        for (_, active), drawn in zip(going, lockstep.draw_for_jobs(logits, rows, going)):
-            for s, code in zip(active, drawn):
-                chosen[s][d] = code
-        code_in = np.asarray([chosen[int(s)][d] for s in owner], dtype=np.int64)
-    return chosen
+        codes[:, d] = plan.draw(logits)
+        code_in = codes[row_segment, d]
+    return {s: codes[i] for i, s in enumerate(plan.segments)}

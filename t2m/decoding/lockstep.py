@@ -18,10 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from t2m.decoding.tokens import RowRule, draw_tokens_of_jobs, guided_logits
+from t2m.decoding.tokens import RowRule, RowRules, guided_logits
 
 __all__ = [
     "Cohort",
+    "DrawPlan",
     "Rows",
     "SamplingJob",
     "Segment",
@@ -182,39 +183,81 @@ def draw_for_jobs(logits: np.ndarray, rows: Rows, going: Sequence[tuple[Sampling
                   forbid: tuple[np.ndarray, int] | None = None) -> list[np.ndarray]:
     """Per (job, active segments) of `going`, the class drawn for each segment: its cond row's logits guided with
     its null row by the job's scale (as `guided`), then one draw each with the job's options and generator, all jobs
-    in one batched draw (tokens.draw_tokens_of_jobs: the same numbers as job by job). `forbid` = (mask over the
-    active segments in order, class): that class is impossible where the mask is true (the GPT's End rule).
+    in batched draws (tokens.draw_tokens_of_jobs: the same numbers as job by job). `forbid` = (mask over the
+    active segments in order, class): that class is impossible where the mask is true (the GPT's End rule)."""
+    plan = DrawPlan(rows, going)
+    return plan.split(plan.draw(logits, forbid))
 
-    Many segments are drawn in groups of whole jobs of about DRAW_GROUP segments: the same numbers (each row's
-    operations and each job's generator are its own), but a group's float64 arrays stay in the CPU's cache. At a
+
+@dataclass
+class _DrawGroup:
+    """A run of whole jobs drawn in one batched draw: its segments' span, their cond and null rows, guidance."""
+
+    start: int
+    stop: int
+    cond: np.ndarray
+    null: np.ndarray | None
+    scale: np.ndarray | None
+    rules: RowRules
+
+
+class DrawPlan:
+    """What draw_for_jobs works out from (job, active segments) before any logits: which rows hold each segment's
+    cond and null logits, the guidance scales, the per-row rules. Made once, it serves several draws for the same
+    segments (T2M-HiFiGPT's R depth calls of a time step) without redoing that Python work per call.
+
+    The segments are drawn in runs of whole jobs of about DRAW_GROUP segments: the same numbers (each row's
+    operations and each job's generator are its own), but a run's float64 arrays stay in the CPU's cache. At a
     GPU's batch sizes that matters: the default model's loop at 1,024 motions spent 1.6x less time on the host, the
     same at 256 and fewer (benchmarks/host_loop.py, docs/measurements/host_loop_2026-11-27.log)."""
-    drawn: list[np.ndarray] = []
-    for group, start, stop in _job_groups(going, DRAW_GROUP):
-        mask = None if forbid is None else (np.asarray(forbid[0], dtype=bool)[start:stop], forbid[1])
-        drawn += _draw_together(logits, rows, group, mask)
-    return drawn
 
+    def __init__(self, rows: Rows, going: Sequence[tuple[SamplingJob, Sequence[int]]], draws: int = 1) -> None:
+        self.draws, self.drawn = draws, 0
+        self.sizes = [len(active) for _, active in going]
+        self.segments = [s for _, active in going for s in active]
+        self.groups: list[_DrawGroup] = []
+        self._ahead: list[np.ndarray | None] = []
+        for group, start, stop in _job_groups(going, DRAW_GROUP):
+            segments = self.segments[start:stop]
+            null = scale = None
+            if any(job.guidance != 1.0 for job, _ in group):
+                scale = np.array([job.guidance for job, active in group for _ in active])
+                null = np.asarray([rows.null.get(s, rows.cond[s]) for s in segments], dtype=np.intp)
+            rules = RowRules([RowRule(len(active), job.temperature, job.top_k, job.rng, job.greedy)
+                              for job, active in group])
+            self.groups.append(_DrawGroup(start, stop, np.asarray([rows.cond[s] for s in segments], dtype=np.intp),
+                                          null, scale, rules))
 
-def _draw_together(logits: np.ndarray, rows: Rows, going: Sequence[tuple[SamplingJob, Sequence[int]]],
-                   forbid: tuple[np.ndarray, int] | None) -> list[np.ndarray]:
-    """draw_for_jobs for one group of jobs: one batched draw."""
-    segments = [s for _, active in going for s in active]
-    if not segments:
-        return [np.zeros(0, dtype=np.int64) for _ in going]
-    cond = logits[[rows.cond[s] for s in segments]].astype(np.float64)
-    chosen = cond
-    if any(job.guidance != 1.0 for job, _ in going):
-        scale = np.array([job.guidance for job, active in going for _ in active])
-        null = logits[[rows.null.get(s, rows.cond[s]) for s in segments]].astype(np.float64)
-        chosen = np.where((scale != 1.0)[:, None], guided_logits(cond, null, scale[:, None]), cond)
-    if forbid is not None:
-        mask, forbidden = forbid
-        chosen[np.asarray(mask, dtype=bool), forbidden] = -np.inf
-    drawn = draw_tokens_of_jobs(chosen, [RowRule(len(active), job.temperature, job.top_k, job.rng, job.greedy)
-                                         for job, active in going])
-    ends = np.cumsum([len(active) for _, active in going]).tolist()
-    return [drawn[end - len(active):end] for (_, active), end in zip(going, ends)]
+    def draw(self, logits: np.ndarray, forbid: tuple[np.ndarray, int] | None = None) -> np.ndarray:
+        """One class per segment, in `segments` order (see draw_for_jobs for `forbid`). A plan of several `draws`
+        takes each job's uniforms for all of them at its first draw, one generator call per job instead of one per
+        draw: the same numbers, as nothing else draws from the jobs' generators between the plan's draws."""
+        if self.drawn == self.draws:
+            raise RuntimeError(f"this DrawPlan was made for {self.draws} draw(s)")
+        if self.draws > 1 and self.drawn == 0:
+            self._ahead = [group.rules.uniforms(self.draws) for group in self.groups]
+        drawn = np.zeros(len(self.segments), dtype=np.int64)
+        for index, group in enumerate(self.groups):
+            if group.stop == group.start:
+                continue
+            cond = logits[group.cond].astype(np.float64)
+            chosen = cond
+            if group.scale is not None:
+                null = logits[group.null].astype(np.float64)
+                chosen = np.where((group.scale != 1.0)[:, None], guided_logits(cond, null, group.scale[:, None]),
+                                  cond)
+            if forbid is not None:
+                mask, forbidden = forbid
+                chosen[np.asarray(mask, dtype=bool)[group.start:group.stop], forbidden] = -np.inf
+            ahead = self._ahead[index] if self.draws > 1 else None
+            drawn[group.start:group.stop] = group.rules.draw(chosen, None if ahead is None else ahead[self.drawn])
+        self.drawn += 1
+        return drawn
+
+    def split(self, drawn: np.ndarray) -> list[np.ndarray]:
+        """`draw`'s classes cut per job, in `going` order."""
+        ends = np.cumsum(self.sizes).tolist()
+        return [drawn[end - size:end] for size, end in zip(self.sizes, ends)]
 
 
 def live_segments(batch: StepRows, jobs: Sequence[SamplingJob],

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RowRule", "draw_stops", "draw_tokens", "draw_tokens_of_jobs", "guided_logits", "sample_tokens",
+__all__ = ["RowRule", "RowRules", "draw_stops", "draw_tokens", "draw_tokens_of_jobs", "guided_logits", "sample_tokens",
            "stop_probability"]
 
 
@@ -48,40 +48,65 @@ class RowRule:
     greedy: bool = False
 
 
+class RowRules:
+    """`RowRule`s made into per-row arrays once, for one or many batched draws over the same rows (T2M-HiFiGPT draws
+    R times per time step for the same segments, t2m.decoding.lockstep.DrawPlan)."""
+
+    def __init__(self, rules: Sequence[RowRule]) -> None:
+        self.rules = list(rules)
+        self.rows = sum(rule.rows for rule in self.rules)
+        self.greedy = np.array([rule.greedy for rule in self.rules for _ in range(rule.rows)], dtype=bool)
+        self.drawn_rules = [rule for rule in self.rules if not rule.greedy]
+        temperatures = [rule.temperature for rule in self.drawn_rules]
+        self.temperature = (np.array([t for rule, t in zip(self.drawn_rules, temperatures)
+                                      for _ in range(rule.rows)])[:, None]
+                            if any(t != 1.0 for t in temperatures) else None)
+        self.top_ks = np.array([rule.top_k or 0 for rule in self.drawn_rules for _ in range(rule.rows)])
+        self.top_k_values = sorted(set(self.top_ks.tolist()) - {0})
+
+    def uniforms(self, draws: int) -> np.ndarray | None:
+        """The uniforms of `draws` draws at once, [draws, drawn rows] (None when every row is greedy): row d is what
+        the d-th draw would take, as numpy's Generator gives a block of n doubles as n single draws would."""
+        if not self.drawn_rules:
+            return None
+        return np.concatenate([rule.rng.random(rule.rows * draws).reshape(draws, rule.rows)
+                               for rule in self.drawn_rules], axis=1)
+
+    def draw(self, logits: np.ndarray, uniforms: np.ndarray | None = None) -> np.ndarray:
+        """One class per row of `logits` [N, V] (N = the rules' rows): see draw_tokens_of_jobs. `uniforms`: this
+        draw's row of `uniforms(draws)`, drawn ahead; by default each rule's generator draws now."""
+        logits = np.array(logits, dtype=np.float64)
+        choice = np.zeros(len(logits), dtype=np.int64)
+        greedy = self.greedy
+        if greedy.any():
+            choice[greedy] = logits[greedy].argmax(axis=1)
+            if greedy.all():
+                return choice
+            logits = logits[~greedy]
+        if self.temperature is not None:
+            logits /= self.temperature
+        for top_k in self.top_k_values:
+            if top_k < logits.shape[1]:
+                chosen = self.top_ks == top_k
+                mine = logits[chosen]
+                kth_largest = np.partition(mine, -top_k, axis=1)[:, -top_k, None]
+                mine[mine < kth_largest] = -np.inf
+                logits[chosen] = mine
+        logits -= logits.max(axis=1, keepdims=True)
+        cdf = np.cumsum(np.exp(logits), axis=1)
+        if uniforms is None:
+            uniforms = np.concatenate([rule.rng.random(rule.rows) for rule in self.drawn_rules])
+        picked = np.minimum((cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1), logits.shape[1] - 1)
+        choice[~greedy] = picked
+        return choice
+
+
 def draw_tokens_of_jobs(logits: np.ndarray, rules: Sequence[RowRule]) -> np.ndarray:
     """`draw_tokens` for many requests at once: the rows of `logits` [N, V] belong to `rules` in order. The same
     numbers, row for row, as one `draw_tokens` call per request (the same float64 operations per row, and each
     request's uniforms drawn from its own generator in row order); one pass of numpy instead of one per request,
     which is what a step of many requests on a CPU pays for."""
-    logits = np.array(logits, dtype=np.float64)
-
-    def per_row(values: list) -> np.ndarray:
-        return np.array([value for rule, value in zip(rules, values) for _ in range(rule.rows)])
-
-    choice = np.zeros(len(logits), dtype=np.int64)
-    greedy = per_row([rule.greedy for rule in rules]).astype(bool)
-    if greedy.any():
-        choice[greedy] = logits[greedy].argmax(axis=1)
-        if greedy.all():
-            return choice
-        logits = logits[~greedy]
-    drawn_rules = [rule for rule in rules if not rule.greedy]
-    temperatures = [rule.temperature for rule in drawn_rules]
-    if any(t != 1.0 for t in temperatures):
-        logits /= np.array([t for rule, t in zip(drawn_rules, temperatures) for _ in range(rule.rows)])[:, None]
-    top_ks = np.array([rule.top_k or 0 for rule in drawn_rules for _ in range(rule.rows)])
-    for top_k in set(top_ks.tolist()) - {0}:
-        if top_k < logits.shape[1]:
-            mine = logits[top_ks == top_k]
-            kth_largest = np.partition(mine, -top_k, axis=1)[:, -top_k, None]
-            mine[mine < kth_largest] = -np.inf
-            logits[top_ks == top_k] = mine
-    logits -= logits.max(axis=1, keepdims=True)
-    cdf = np.cumsum(np.exp(logits), axis=1)
-    uniforms = np.concatenate([rule.rng.random(rule.rows) for rule in drawn_rules])
-    picked = np.minimum((cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1), logits.shape[1] - 1)
-    choice[~greedy] = picked
-    return choice
+    return RowRules(rules).draw(logits)
 
 
 def sample_tokens(logits: np.ndarray, mask_end: np.ndarray, end_id: int, temperature: float, top_k: int | None,

@@ -86,3 +86,29 @@ def test_many_jobs_drawn_in_groups_give_one_draws_numbers(monkeypatch):
     one = draw(10_000)
     assert draw(16) == one and draw(5) == one
     assert draw(1) == one                                  # every job its own draw
+
+
+def test_a_plan_of_several_draws_gives_the_draws_one_by_one():
+    """T2M-HiFiGPT's depth draws: one DrawPlan for R draws, each job's R uniforms taken from its generator at once,
+    gives the codes of R separate draw_for_jobs calls (greedy and sampling jobs, more segments than DRAW_GROUP)."""
+    import t2m.decoding.lockstep as lockstep
+
+    rng = np.random.default_rng(3)
+    sizes = rng.integers(1, 4, size=40).tolist()
+    starts = np.cumsum([0, *sizes[:-1]]).tolist()
+    owner = np.repeat(np.arange(sum(sizes)), 2)
+    rows = lockstep.row_maps(owner)
+    logits = [(rng.standard_normal((len(owner), 17)) * 2).astype(np.float32) for _ in range(4)]
+
+    def going() -> list:
+        return [(SamplingJob.of(np.zeros((n, 4), np.float32), [5] * n, max_tokens=9, guidance=(1.0, 2.5)[j % 2],
+                                temperature=(1.0, 0.8)[j % 3 == 1], top_k=(None, 6)[j % 4 == 0], greedy=j % 5 == 0,
+                                rng=j), list(range(s, s + n)))
+                for j, (n, s) in enumerate(zip(sizes, starts))]
+
+    one_by_one = [np.concatenate(draw_for_jobs(step_logits, rows, jobs)).tolist()
+                  for jobs in [going()] for step_logits in logits]
+    plan = lockstep.DrawPlan(rows, going(), draws=4)
+    assert [plan.draw(step_logits).tolist() for step_logits in logits] == one_by_one
+    with pytest.raises(RuntimeError, match="made for 4 draw"):
+        plan.draw(logits[0])
