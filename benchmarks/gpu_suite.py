@@ -167,12 +167,14 @@ def hifigpt_generate(temporal: Any, residual: Any, dim: int, steps: int, max_tok
     return generate
 
 
-def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int) -> Generate:
-    """B one-segment jobs of `rows` token rows, `passes` mask steps, MoMask's guidance: maps [B, rows, C, R]."""
+def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int,
+                    decoding: dict[str, Any]) -> Generate:
+    """B one-segment jobs of `rows` token rows, `passes` mask steps, the model's guidance and top-k (`decoding`:
+    MaskedJob's fields): maps [B, rows, C, R]."""
     from t2m.decoding.masked import MaskedJob, sample_token_maps
 
     def generate(batch: int) -> np.ndarray:
-        jobs = [MaskedJob(conds=cond[None], rows=[rows], rng=np.random.default_rng(index), steps=passes)
+        jobs = [MaskedJob(conds=cond[None], rows=[rows], rng=np.random.default_rng(index), steps=passes, **decoding)
                 for index, cond in enumerate(_conds(batch, dim))]
         return np.stack([maps[0] for maps in sample_token_maps(masked, residual, jobs)])  # type: ignore[index]
     return generate
@@ -284,19 +286,20 @@ def embedded_hifigpt_case() -> Case:
 
 
 def onnx_masked(masked_path: Path, residual_path: Path | None, columns: int, mask_id: int, layers: int, pad_id: int,
-                dim: int, rows: int, passes: int) -> Callable[[Any], Generate]:
+                dim: int, rows: int, passes: int, decoding: dict[str, Any]) -> Callable[[Any], Generate]:
     def make(execution: Any) -> Generate:
         from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
         masked = OnnxMaskedStep(session(masked_path, execution), columns, mask_id)
         residual = None if residual_path is None else OnnxResidualStep(session(residual_path, execution), layers,
                                                                          pad_id)
-        return masked_generate(masked, residual, dim, rows, passes)
+        return masked_generate(masked, residual, dim, rows, passes, decoding)
     return make
 
 
 def graphed_masked(masked_path: Path, residual_path: Path | None, columns: int, mask_id: int, layers: int,
-                   pad_id: int, dim: int, rows: int, passes: int) -> Callable[[str], Generate]:
+                   pad_id: int, dim: int, rows: int, passes: int,
+                   decoding: dict[str, Any]) -> Callable[[str], Generate]:
     """The masked loop with its calls replayed as CUDA graphs, one per input shape (engine/graphed_step.py's
     GraphedSession; on 'cpu' the same buffers, no capture)."""
     def make(device: str) -> Generate:
@@ -314,7 +317,7 @@ def graphed_masked(masked_path: Path, residual_path: Path | None, columns: int, 
 
         masked = OnnxMaskedStep(graphed(masked_path), columns, mask_id)
         residual = None if residual_path is None else OnnxResidualStep(graphed(residual_path), layers, pad_id)
-        return masked_generate(masked, residual, dim, rows, passes)
+        return masked_generate(masked, residual, dim, rows, passes, decoding)
     return make
 
 
@@ -324,8 +327,9 @@ def embedded_masked_case() -> Case:
     MASKED_BUNDLE = EMBEDDED_BUNDLES["masked"]
     manifest = json.loads((MASKED_BUNDLE / "manifest.json").read_text())
     m, layers = manifest["masked"], manifest["residual_layers"]
+    decoding = {name: m[name] for name in ("guidance", "residual_guidance", "top_k", "residual_top_k")}
     loop = (MASKED_BUNDLE / "masked.onnx", MASKED_BUNDLE / "residual.onnx" if layers > 1 else None, m["columns"],
-            m["mask_id"], layers, m["pad_id"], manifest["text_encoder"]["dim"], 50, m["steps"])
+            m["mask_id"], layers, m["pad_id"], manifest["text_encoder"]["dim"], 50, m["steps"], decoding)
     return Case("masked (t2m/bundles/masked)", f"{manifest['name']}: {m['steps']} mask passes + {layers - 1} "
                 "residual passes; no PyTorch column (transformer sizes not in the manifest)", m["steps"] + layers - 1,
                 onnx_masked(*loop), None, MASKED_BUNDLE / "decoder.onnx", kv_cache=False, graphed=graphed_masked(*loop))
@@ -360,6 +364,18 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
                 graphed_label="fixed cache + CUDA graphs")
 
 
+def momask_release_decoding(codebook: int) -> dict[str, Any]:
+    """MoMask's release decoding (its HumanML3D evaluation settings: guidance 4 and 5, top-k 10% of each stage's
+    classes, the residual stage at temperature 1), as MaskedJob fields."""
+    from dataclasses import asdict
+
+    from t2m.export.importers.momask import release_decoding
+
+    fields = asdict(release_decoding("t2m", codebook))
+    return {name: fields[name] for name in ("guidance", "residual_guidance", "top_k", "residual_top_k",
+                                            "residual_temperature")}
+
+
 def release_momask_case(workdir: Path, tiny: bool) -> Case:
     """MoMask's release sizes (random weights): the masked and residual transformers and the RVQ decoder."""
     from t2m.export.graphs.masked import export_joint_decoder, export_masked, export_residual
@@ -390,10 +406,12 @@ def release_momask_case(workdir: Path, tiny: bool) -> Case:
         from t2m.model.sampling.masked import TorchMaskedStep, TorchResidualStep
 
         return masked_generate(TorchMaskedStep(masked.to(device), device),
-                               TorchResidualStep(residual.to(device), device), dim, rows, passes)
+                               TorchResidualStep(residual.to(device), device), dim, rows, passes,
+                               momask_release_decoding(size["codebook"]))
 
     params = sum(p.numel() for p in [*masked.parameters(), *residual.parameters()]) / 1e6
-    loop = (paths["masked"], paths["residual"], 1, masked.config.mask_id, layers, residual.pad_id, dim, rows, passes)
+    loop = (paths["masked"], paths["residual"], 1, masked.config.mask_id, layers, residual.pad_id, dim, rows, passes,
+            momask_release_decoding(size["codebook"]))
     return Case("momask-release" + (" (--tiny)" if tiny else ""), f"random weights, masked + residual transformers "
                 f"{config.n_layer} layers x {config.latent} ({params:.0f}M parameters), {rows} rows (196 frames), "
                 f"{passes} mask passes + {layers - 1} residual passes", passes + layers - 1,

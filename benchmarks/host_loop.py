@@ -1,11 +1,13 @@
-"""What the decoding loop costs on the host alone: the default model's T2M-HiFiGPT loop (t2m/decoding) with steps
-that answer instantly (fixed outputs of the real sizes), so everything timed is sampling, guidance, bookkeeping and
-Python. Why: on a GPU the network calls of a large batch are cheap, and a loop that spends longer on the host than
-the GPU spends on its calls caps motions per second whatever the GPU does (issue 29's goal: the default model at
-1,000 10-s motions/s). benchmarks/gpu_suite.py adds the same instant steps as a "host loop alone" row, so the cap is
-measured on the device's own CPU beside its GPU rows.
+"""What the decoding loops cost on the host alone: the default model's T2M-HiFiGPT loop and MoMask's masked loop at
+its release sizes (t2m/decoding), with steps that answer instantly (fixed outputs of the real sizes), so everything
+timed is sampling, guidance, bookkeeping and Python. Why: on a GPU the network calls of a large batch are cheap, and
+a loop that spends longer on the host than the GPU spends on its calls caps motions per second whatever the GPU does
+(issue 29's goals: the default model at 1,000 10-s motions/s, MoMask's 10 s motion in 20 ms).
+benchmarks/gpu_suite.py adds the default loop over instant steps as a "host loop alone" row, so the cap is measured
+on the device's own CPU beside its GPU rows.
 
     PYTHONPATH=. python benchmarks/host_loop.py [--batches 1,64,256,1024] [--repeats 3] [--draw-groups 128,0]
+        [--loops default,momask]
 
 --draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows),
 alternating within each repeat. To compare checkouts, copy this file into the other checkout's benchmarks/ and run
@@ -80,34 +82,78 @@ def default_loop(max_batch: int) -> tuple[Callable[[int], np.ndarray], int]:
     return hifigpt_generate(temporal, residual, manifest["text_encoder"]["dim"], steps, manifest["max_tokens"]), steps
 
 
+def _map_logits(rows: int, tokens: int, classes: int) -> np.ndarray:
+    return np.random.default_rng(2).normal(size=(rows, tokens, 1, classes)).astype(np.float32)
+
+
+class InstantMaskedStep(_Instant):
+    """t2m.decoding.masked.MaskedStep answering logits [B, T, C, K] at once."""
+
+    def __init__(self, rows: int, tokens: int, classes: int, mask_id: int) -> None:
+        self.values, self.columns, self.mask_id = _map_logits(rows, tokens, classes), 1, mask_id
+
+    def __call__(self, tokens, cond, length):
+        return self.values[: len(cond), : tokens.shape[1]]
+
+
+class InstantMaskedResidual(_Instant):
+    """t2m.decoding.masked.ResidualStep answering logits for a layer at once."""
+
+    mask_id = None
+
+    def __init__(self, rows: int, tokens: int, classes: int, layers: int) -> None:
+        self.values, self.layers, self.pad_id = _map_logits(rows, tokens, classes), layers, classes - 1
+
+    def __call__(self, codes, layer, cond, length):
+        return self.values[: len(cond), : codes.shape[1]]
+
+
+def momask_loop(max_batch: int) -> tuple[Callable[[int], np.ndarray], int]:
+    """MoMask's release loop (49 token rows, 10 mask passes, 5 residual passes, 512 codes, its release decoding:
+    guidance 4 and 5, top-k 52) over instant steps."""
+    from benchmarks.gpu_suite import masked_generate, momask_release_decoding
+
+    rows, passes, layers, codes = 49, 10, 6, 512
+    masked = InstantMaskedStep(2 * max_batch, rows, codes + 1, codes)       # K codes + the mask class
+    residual = InstantMaskedResidual(2 * max_batch, rows, codes + 1, layers)  # K codes + the pad class
+    generate = masked_generate(masked, residual, 512, rows, passes, momask_release_decoding(codes))
+    return generate, passes + layers - 1
+
+
+LOOPS = {"default": ("default (T2M-HiFiGPT)", default_loop), "momask": ("MoMask release", momask_loop)}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--batches", default="1,64,256,1024")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--draw-groups", default=None, help="DRAW_GROUP sizes to compare (0 = all rows at once)")
+    parser.add_argument("--loops", default="default", help=f"comma-separated, of {', '.join(LOOPS)}")
     args = parser.parse_args(argv)
     from t2m.decoding import lockstep
 
     batches = [int(b) for b in args.batches.split(",")]
     default = getattr(lockstep, "DRAW_GROUP", 0)      # 0 in a checkout from before DRAW_GROUP
     groups = [int(g) for g in args.draw_groups.split(",")] if args.draw_groups else [default]
-    generate, steps = default_loop(max(batches))
     print("| loop | draw group | batch | ms per batch of 10 s motions | host cap, motions / s |\n"
           "| --- | ---: | ---: | ---: | ---: |")
-    for batch in batches:
-        generate(batch)
-        times: dict[int, list[float]] = {group: [] for group in groups}
-        for _ in range(args.repeats):
+    for name in args.loops.split(","):
+        label, make = LOOPS[name]
+        generate, steps = make(max(batches))
+        for batch in batches:
+            generate(batch)
+            times: dict[int, list[float]] = {group: [] for group in groups}
+            for _ in range(args.repeats):
+                for group in groups:
+                    lockstep.DRAW_GROUP = group or 10**9
+                    started = time.perf_counter()
+                    generate(batch)
+                    times[group].append(time.perf_counter() - started)
             for group in groups:
-                lockstep.DRAW_GROUP = group or 10**9
-                started = time.perf_counter()
-                generate(batch)
-                times[group].append(time.perf_counter() - started)
-        for group in groups:
-            ms = 1000 * statistics.median(times[group])
-            print(f"| default (T2M-HiFiGPT, {steps} steps) | {group or 'all'} | {batch} | {ms:.0f} | "
-                  f"{1000 * batch / ms:.0f} |", flush=True)
-    print(f"- median of {args.repeats}; instant network calls; guidance 3 (a cond and a null row per motion)")
+                ms = 1000 * statistics.median(times[group])
+                print(f"| {label}, {steps} steps | {group or 'all'} | {batch} | {ms:.1f} | {1000 * batch / ms:.0f} |",
+                      flush=True)
+    print(f"- median of {args.repeats}; instant network calls; guidance (a cond and a null row per motion)")
     return 0
 
 

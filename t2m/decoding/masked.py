@@ -103,12 +103,14 @@ def _batch_conds(jobs: Sequence[MaskedJob], segments: list[_Segment], guided: bo
     return conds, length
 
 
-def _guided(logits: np.ndarray, index: int, count: int, scale: float, guided: bool) -> np.ndarray:
-    """Segment `index`'s logits after guidance (float64); the null rows follow the `count` cond rows."""
-    cond = logits[index].astype(np.float64)
+def _guided(logits: np.ndarray, index: int, count: int, scale: float, guided: bool,
+            tokens: slice | np.ndarray) -> np.ndarray:
+    """Segment `index`'s logits at `tokens` (of its token axis) after guidance (float64); the null rows follow the
+    `count` cond rows. Each token's numbers are its own, whichever others are taken."""
+    cond = logits[index, tokens].astype(np.float64)
     if not guided or scale == 1.0:
         return cond
-    return guided_logits(cond, logits[count + index].astype(np.float64), scale)
+    return guided_logits(cond, logits[count + index, tokens].astype(np.float64), scale)
 
 
 def _softmax_at(logits: np.ndarray, chosen: np.ndarray) -> np.ndarray:
@@ -118,10 +120,12 @@ def _softmax_at(logits: np.ndarray, chosen: np.ndarray) -> np.ndarray:
 
 
 def _draws(logits: np.ndarray, jobs: Sequence[MaskedJob], segments: list[_Segment], guided: bool,
-           stage: str) -> list[tuple[np.ndarray, np.ndarray]]:
+           stage: str, only: Sequence[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per segment (guided logits over its real tokens, the codes drawn from them) with its job's settings for
     `stage` ("mask": guidance, top_k, temperature; "residual": residual_guidance, residual_top_k and
-    residual_temperature, which defaults to temperature), in segment order."""
+    residual_temperature, which defaults to temperature), in segment order. `only` (per segment, a mask over its
+    tokens): the logits and codes of those tokens alone, the same numbers (tokens.draw_tokens's `only`; every
+    token still takes its uniform)."""
     count, out = len(segments), []
     logits = logits.reshape(len(logits), -1, logits.shape[-1])
     for index, segment in enumerate(segments):
@@ -131,8 +135,10 @@ def _draws(logits: np.ndarray, jobs: Sequence[MaskedJob], segments: list[_Segmen
         else:
             scale, top_k = job.residual_guidance, job.residual_top_k
             temperature = job.temperature if job.residual_temperature is None else job.residual_temperature
-        chosen = _guided(logits, index, count, scale, guided)[:segment.tokens.size]   # its real tokens only
-        out.append((chosen, draw_tokens(chosen, temperature, top_k, job.rng, job.greedy)))
+        mine = None if only is None else only[index]
+        tokens = slice(0, segment.tokens.size) if mine is None else np.flatnonzero(mine)   # its real tokens only
+        chosen = _guided(logits, index, count, scale, guided, tokens)
+        out.append((chosen, draw_tokens(chosen, temperature, top_k, job.rng, job.greedy, only=mine)))
     return out
 
 
@@ -155,12 +161,11 @@ def _first_layer(step: MaskedStep, jobs: Sequence[MaskedJob], segments: list[_Se
         logits = step(np.concatenate([tokens_in, tokens_in]) if guided else tokens_in, cond, length)
         if on_call is not None:
             on_call(len(cond))
-        for index, (segment, (chosen, drawn)) in enumerate(zip(segments, _draws(logits, jobs, segments, guided,
-                                                                                  "mask"))):
-            masked = masked_now[index]
-            segment.tokens[masked] = drawn[masked]
-            confidence = _softmax_at(chosen, drawn)
-            segment.scores = np.where(masked, confidence, np.inf)
+        draws = _draws(logits, jobs, segments, guided, "mask", only=masked_now)   # the re-masked tokens' alone
+        for segment, masked, (chosen, drawn) in zip(segments, masked_now, draws):
+            segment.tokens[masked] = drawn
+            segment.scores = np.full(segment.tokens.size, np.inf)
+            segment.scores[masked] = _softmax_at(chosen, drawn)
 
 
 def _residual_layers(step: ResidualStep, jobs: Sequence[MaskedJob], segments: list[_Segment], columns: int,

@@ -20,21 +20,54 @@ def guided_logits(cond: np.ndarray, uncond: np.ndarray, scale: float | np.ndarra
 
 
 def draw_tokens(logits: np.ndarray, temperature: float, top_k: int | None, rng: np.random.Generator,
-                greedy: bool = False) -> np.ndarray:
+                greedy: bool = False, only: np.ndarray | None = None) -> np.ndarray:
     """One class per row of `logits` [N, V]: the argmax when `greedy`, else a draw from softmax(logits / temperature)
-    restricted to the top_k classes, by the inverse CDF of one uniform per row (drawn in row order)."""
-    logits = np.array(logits, dtype=np.float64)
-    if greedy:
+    restricted to the top_k classes, by the inverse CDF of one uniform per row (drawn in row order).
+
+    `only` (a boolean mask over M >= N rows): `logits` holds the rows where it is true, and their classes are the
+    ones a draw over all M rows would give them; the generator still takes a uniform for every one of the M rows,
+    so what it draws next is unchanged (the masked family's mask stage keeps only the re-masked tokens' draws, so it
+    computes only theirs)."""
+    uniforms = None if greedy else rng.random(len(logits) if only is None else len(only))
+    if only is not None and uniforms is not None:
+        uniforms = uniforms[only]
+    return _draw_rows(np.array(logits, dtype=np.float64), temperature, top_k, uniforms)
+
+
+def _draw_rows(logits: np.ndarray, temperature: float, top_k: int | None, uniforms: np.ndarray | None) -> np.ndarray:
+    """draw_tokens's numbers for float64 `logits` (changed in place) and their uniforms (None: greedy)."""
+    if uniforms is None:
         return logits.argmax(axis=1).astype(np.int64)
     logits /= temperature
     if top_k is not None and top_k < logits.shape[1]:
         kth_largest = np.partition(logits, -top_k, axis=1)[:, -top_k, None]
         logits[logits < kth_largest] = -np.inf
     logits -= logits.max(axis=1, keepdims=True)
-    cdf = np.cumsum(np.exp(logits), axis=1)
-    draws = rng.random(len(logits)) * cdf[:, -1]
-    choice = (cdf <= draws[:, None]).sum(axis=1)                  # first index whose cdf exceeds the draw
-    return np.minimum(choice, logits.shape[1] - 1).astype(np.int64)
+    return _pick(logits, uniforms, filtered=top_k is not None)
+
+
+def _pick(shifted: np.ndarray, uniforms: np.ndarray, filtered: bool) -> np.ndarray:
+    """The inverse-CDF choice per row of float64 logits shifted to a maximum of 0 (-inf where filtered out), one
+    uniform each: the first class whose cumulative exp exceeds uniform x total (the last class if none does).
+
+    When a top-k filter left every row the same number c of classes (no ties at the k-th), the exp and the
+    cumulative sum run over those c classes alone: the same partial sums (exp(-inf) adds an exact 0), so the same
+    choice, for c/V of the work (MoMask's top-k keeps 52 of 513)."""
+    width = shifted.shape[1]
+    if filtered and len(shifted):
+        kept = shifted > -np.inf
+        counts = kept.sum(axis=1)
+        count = int(counts[0])
+        if count < width and (counts == count).all():
+            flat = np.flatnonzero(kept)                                       # kept classes, in class order
+            columns = (flat % width).reshape(len(shifted), count)
+            cdf = np.cumsum(np.exp(shifted.ravel()[flat].reshape(len(shifted), count)), axis=1)
+            first = (cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1)
+            picked = columns[np.arange(len(shifted)), np.minimum(first, count - 1)]
+            return np.where(first < count, picked, width - 1).astype(np.int64)
+    cdf = np.cumsum(np.exp(shifted), axis=1)
+    choice = (cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1)      # first index whose cdf exceeds the draw
+    return np.minimum(choice, width - 1).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -93,11 +126,9 @@ class RowRules:
                 mine[mine < kth_largest] = -np.inf
                 logits[chosen] = mine
         logits -= logits.max(axis=1, keepdims=True)
-        cdf = np.cumsum(np.exp(logits), axis=1)
         if uniforms is None:
             uniforms = np.concatenate([rule.rng.random(rule.rows) for rule in self.drawn_rules])
-        picked = np.minimum((cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1), logits.shape[1] - 1)
-        choice[~greedy] = picked
+        choice[~greedy] = _pick(logits, uniforms, filtered=bool(self.top_k_values))
         return choice
 
 

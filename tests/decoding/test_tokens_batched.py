@@ -112,3 +112,47 @@ def test_a_plan_of_several_draws_gives_the_draws_one_by_one():
     assert [plan.draw(step_logits).tolist() for step_logits in logits] == one_by_one
     with pytest.raises(RuntimeError, match="made for 4 draw"):
         plan.draw(logits[0])
+
+
+def _full_width_draw(logits: np.ndarray, temperature: float, top_k: int | None, uniforms: np.ndarray) -> np.ndarray:
+    """draw_tokens as it was written before the top-k shortcut: exp and cumsum over every class."""
+    logits = np.array(logits, dtype=np.float64) / temperature
+    if top_k is not None and top_k < logits.shape[1]:
+        kth_largest = np.partition(logits, -top_k, axis=1)[:, -top_k, None]
+        logits[logits < kth_largest] = -np.inf
+    logits -= logits.max(axis=1, keepdims=True)
+    cdf = np.cumsum(np.exp(logits), axis=1)
+    choice = (cdf <= (uniforms * cdf[:, -1])[:, None]).sum(axis=1)
+    return np.minimum(choice, logits.shape[1] - 1)
+
+
+class _Handing:
+    """A stand-in generator that hands out fixed uniforms, all at once."""
+
+    def __init__(self, uniforms: np.ndarray) -> None:
+        self.uniforms = uniforms
+
+    def random(self, n: int) -> np.ndarray:
+        assert n == len(self.uniforms)
+        return self.uniforms
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_top_k_shortcut_picks_what_the_full_width_draw_picks(seed):
+    """With a top-k filter the exp and cumsum run over the kept classes only (tokens._pick): the same choices as over
+    every class, for spread-out logits, for logits with ties at the k-th (the full-width path), for logits so far
+    apart that kept classes underflow to 0, and for uniforms at the very top of [0, 1)."""
+    rng = np.random.default_rng(seed)
+    cases = [rng.standard_normal((40, 513)) * 3,                          # no ties: the shortcut
+             np.round(rng.standard_normal((40, 513))),                   # ties at the k-th: full width
+             rng.standard_normal((40, 513)) * 400]                       # kept classes that underflow
+    for logits in cases:
+        for top_k, temperature in [(52, 1.0), (1, 1.0), (5, 0.7), (512, 1.3)]:
+            uniforms = rng.random(len(logits))
+            uniforms[:3] = [0.0, 1 - 2**-53, 0.5]
+            want = _full_width_draw(logits, temperature, top_k, uniforms)
+
+            got = draw_tokens(logits, temperature, top_k, _Handing(uniforms))  # type: ignore[arg-type]
+            assert np.array_equal(got, want), (top_k, temperature)
+            rules = [RowRule(len(logits), temperature, top_k, _Handing(uniforms))]  # type: ignore[arg-type]
+            assert np.array_equal(draw_tokens_of_jobs(logits, rules), want)
