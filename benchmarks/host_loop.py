@@ -120,7 +120,17 @@ def momask_loop(max_batch: int) -> tuple[Callable[[int], np.ndarray], int]:
     return generate, passes + layers - 1
 
 
-LOOPS = {"default": ("default (T2M-HiFiGPT)", default_loop), "momask": ("MoMask release", momask_loop)}
+def t2m_gpt_loop(max_batch: int) -> tuple[Callable[[int], np.ndarray], int]:
+    """T2M-GPT's release loop (50 tokens of 512 codes + End, guidance 3 as gpu_suite runs it) over instant steps."""
+    from benchmarks.gpu_suite import gpt_generate
+
+    codes, tokens = 512, 50
+    step = InstantGptStep(2 * max_batch, codes + 1, 3)
+    return gpt_generate(step, 512, tokens, tokens, codes), tokens
+
+
+LOOPS = {"default": ("default (T2M-HiFiGPT)", default_loop), "momask": ("MoMask release", momask_loop),
+         "t2m-gpt": ("T2M-GPT release", t2m_gpt_loop)}
 
 
 def main(argv: list[str] | None = None) -> int:

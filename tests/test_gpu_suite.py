@@ -121,14 +121,16 @@ def test_gpu_profile_sums_onnxruntimes_profile_per_operator_on_cpu(tmp_path, cap
     assert "| operator (provider) | ms | calls | us per call |" in capsys.readouterr().out
 
 
-def test_host_loop_prints_one_row_per_batch_and_draw_group():
-    """benchmarks/host_loop.py (the default model's loop over instant steps; gpu_suite's "host loop alone" row):
-    one table row per batch and DRAW_GROUP size compared. Figures are printed, never asserted."""
+def test_host_loop_prints_one_row_per_loop_batch_and_draw_group():
+    """benchmarks/host_loop.py (the decoding loops over instant steps; gpu_suite's "host loop alone" row): one table
+    row per loop, batch and DRAW_GROUP size compared. Figures are printed, never asserted."""
     result = subprocess.run(
         [sys.executable, str(REPO / "benchmarks" / "host_loop.py"), "--batches", "1,3", "--repeats", "1",
-         "--draw-groups", "2,0"], cwd=REPO, capture_output=True, text=True, timeout=120,
-        env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
+         "--draw-groups", "2,0", "--loops", "default,momask,t2m-gpt"], cwd=REPO, capture_output=True, text=True,
+        timeout=120, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
     assert result.returncode == 0, result.stderr[-2000:]
-    rows = [line.split("|")[2:4] for line in result.stdout.splitlines() if line.startswith("| default")]
-    assert [(group.strip(), batch.strip()) for group, batch in rows] == [("2", "1"), ("all", "1"), ("2", "3"),
-                                                                         ("all", "3")]
+    rows = [[cell.strip() for cell in line.split("|")[1:4]] for line in result.stdout.splitlines()
+            if line.startswith("| ") and not line.startswith(("| loop", "| ---"))]
+    assert [(loop.split(" ")[0], group, batch) for loop, group, batch in rows] == [
+        (loop, group, batch) for loop in ("default", "MoMask", "T2M-GPT") for batch in ("1", "3")
+        for group in ("2", "all")]
