@@ -31,19 +31,7 @@ def draw_tokens(logits: np.ndarray, temperature: float, top_k: int | None, rng: 
     uniforms = None if greedy else rng.random(len(logits) if only is None else len(only))
     if only is not None and uniforms is not None:
         uniforms = uniforms[only]
-    return _draw_rows(np.array(logits, dtype=np.float64), temperature, top_k, uniforms)
-
-
-def _draw_rows(logits: np.ndarray, temperature: float, top_k: int | None, uniforms: np.ndarray | None) -> np.ndarray:
-    """draw_tokens's numbers for float64 `logits` (changed in place) and their uniforms (None: greedy)."""
-    if uniforms is None:
-        return logits.argmax(axis=1).astype(np.int64)
-    logits /= temperature
-    if top_k is not None and top_k < logits.shape[1]:
-        kth_largest = np.partition(logits, -top_k, axis=1)[:, -top_k, None]
-        logits[logits < kth_largest] = -np.inf
-    logits -= logits.max(axis=1, keepdims=True)
-    return _pick(logits, uniforms, filtered=top_k is not None)
+    return RowRules([RowRule(len(logits), temperature, top_k, rng, greedy)]).draw(logits, uniforms)
 
 
 def _pick(shifted: np.ndarray, uniforms: np.ndarray, filtered: bool) -> np.ndarray:
@@ -113,9 +101,9 @@ class RowRules:
         greedy = self.greedy
         if greedy.any():
             choice[greedy] = logits[greedy].argmax(axis=1)
-            if greedy.all():
-                return choice
             logits = logits[~greedy]
+        if not self.drawn_rules:
+            return choice
         if self.temperature is not None:
             logits /= self.temperature
         for top_k in self.top_k_values:

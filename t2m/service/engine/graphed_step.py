@@ -29,7 +29,7 @@ import onnxruntime as ort
 
 from t2m.service.engine.bound_step import session_device
 
-__all__ = ["FixedCache", "FixedCacheGptStep", "GraphedSession", "graph_session"]
+__all__ = ["FixedCache", "FixedCacheGptStep", "GraphedSession", "graph_session", "run_options"]
 
 
 def graph_session(path: str | Path, providers: list[str], cuda_graph: bool,
@@ -39,6 +39,16 @@ def graph_session(path: str | Path, providers: list[str], cuda_graph: bool,
     named: list[Any] = [(name, {"enable_cuda_graph": "1"}) if cuda_graph and name == "CUDAExecutionProvider" else name
                         for name in providers]
     return ort.InferenceSession(str(path), sess_options=options, providers=named)
+
+
+def run_options(cuda_graph: bool, graph_id: int) -> ort.RunOptions | None:
+    """A run's options: with CUDA graphs, which graph it captures or replays (`graph_id` >= 1; -1: a plain run,
+    nothing captured; onnxruntime reserves 0). The CPU provider ignores the id."""
+    if not cuda_graph:
+        return None
+    options = ort.RunOptions()
+    options.add_run_config_entry("gpu_graph_id", str(graph_id))
+    return options
 
 
 @dataclass
@@ -58,7 +68,7 @@ class FixedCache:
 class FixedCacheGptStep:
     """The GPT loop's step (t2m.decoding.gpt.GptStep) over gpt_step_fixed.onnx; see the module docstring."""
 
-    _graph_ids = itertools.count(1)     # onnxruntime's graph ids are per session; 0 is reserved, -1 means none
+    _graph_ids = itertools.count(1)     # run_options's ids: one count for every session is simply never reused
 
     def __init__(self, session: ort.InferenceSession, n_layer: int, n_head: int, head_dim: int, capacity: int,
                  has_length_input: bool, cuda_graph: bool = False) -> None:
@@ -111,11 +121,8 @@ class FixedCacheGptStep:
             host["length"][rows] = length
         for name, value in host.items():
             past.device[name].update_inplace(value)
-        options = None
-        if self.cuda_graph:
-            options = ort.RunOptions()
-            options.add_run_config_entry("gpu_graph_id", str(past.graph_ids[past.parity]))
-        self.session.run_with_iobinding(past.bindings[past.parity], options)
+        self.session.run_with_iobinding(past.bindings[past.parity],
+                                        run_options(self.cuda_graph, past.graph_ids[past.parity]))
         past.parity ^= 1
         return past.device["logits"].numpy()[rows], past
 
@@ -145,18 +152,11 @@ class GraphedSession:
         self._calls: dict[tuple, tuple[dict[str, ort.OrtValue], dict[str, ort.OrtValue], Any, int]] = {}
         self._ids = itertools.count(1)
 
-    def _options(self, graph_id: int) -> ort.RunOptions | None:
-        if not self.cuda_graph:
-            return None
-        options = ort.RunOptions()
-        options.add_run_config_entry("gpu_graph_id", str(graph_id))
-        return options
-
     def run(self, output_names: list[str] | None, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
         feeds = {name: np.ascontiguousarray(value) for name, value in feeds.items()}
         key = tuple((name, value.shape, value.dtype.str) for name, value in sorted(feeds.items()))
         if key not in self._calls:
-            first = self.session.run(None, feeds, self._options(-1))     # -1: no capture, only the shapes
+            first = self.session.run(None, feeds, run_options(self.cuda_graph, -1))   # only the shapes
             inputs = {name: ort.OrtValue.ortvalue_from_numpy(value, self.device, 0) for name, value in feeds.items()}
             outputs = {name: ort.OrtValue.ortvalue_from_numpy(np.zeros_like(value), self.device, 0)
                        for name, value in zip(self.output_names, first)}
@@ -169,6 +169,6 @@ class GraphedSession:
         inputs, outputs, binding, graph_id = self._calls[key]
         for name, value in feeds.items():
             inputs[name].update_inplace(value)
-        self.session.run_with_iobinding(binding, self._options(graph_id))
+        self.session.run_with_iobinding(binding, run_options(self.cuda_graph, graph_id))
         # copies: on the CPU provider numpy() is a view of the buffer that the next call of this shape overwrites
         return [np.array(outputs[name].numpy()) for name in (output_names or self.output_names)]
