@@ -41,6 +41,9 @@ def graph_session(path: str | Path, providers: list[str], cuda_graph: bool,
     return ort.InferenceSession(str(path), sess_options=options, providers=named)
 
 
+_GRAPH_IDS = itertools.count(1)   # run_options's ids (per session in onnxruntime; one count never reuses one)
+
+
 def run_options(cuda_graph: bool, graph_id: int) -> ort.RunOptions | None:
     """A run's options: with CUDA graphs, which graph it captures or replays (`graph_id` >= 1; -1: a plain run,
     nothing captured; onnxruntime reserves 0). The CPU provider ignores the id."""
@@ -67,8 +70,6 @@ class FixedCache:
 
 class FixedCacheGptStep:
     """The GPT loop's step (t2m.decoding.gpt.GptStep) over gpt_step_fixed.onnx; see the module docstring."""
-
-    _graph_ids = itertools.count(1)     # run_options's ids: one count for every session is simply never reused
 
     def __init__(self, session: ort.InferenceSession, n_layer: int, n_head: int, head_dim: int, capacity: int,
                  has_length_input: bool, cuda_graph: bool = False) -> None:
@@ -108,7 +109,7 @@ class FixedCacheGptStep:
             binding.bind_ortvalue_output("present_kv", present)
             bindings.append(binding)
         return FixedCache(batch, host, device, (bindings[0], bindings[1]),
-                          (next(self._graph_ids), next(self._graph_ids)))
+                          (next(_GRAPH_IDS), next(_GRAPH_IDS)))
 
     def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
                  past: FixedCache) -> tuple[np.ndarray, FixedCache]:
@@ -150,7 +151,6 @@ class GraphedSession:
         self.device = session_device(session)
         self.output_names = [value.name for value in session.get_outputs()]
         self._calls: dict[tuple, tuple[dict[str, ort.OrtValue], dict[str, ort.OrtValue], Any, int]] = {}
-        self._ids = itertools.count(1)
 
     def run(self, output_names: list[str] | None, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
         feeds = {name: np.ascontiguousarray(value) for name, value in feeds.items()}
@@ -165,7 +165,7 @@ class GraphedSession:
                 binding.bind_ortvalue_input(name, value)
             for name, value in outputs.items():
                 binding.bind_ortvalue_output(name, value)
-            self._calls[key] = (inputs, outputs, binding, next(self._ids))
+            self._calls[key] = (inputs, outputs, binding, next(_GRAPH_IDS))
         inputs, outputs, binding, graph_id = self._calls[key]
         for name, value in feeds.items():
             inputs[name].update_inplace(value)
