@@ -7,7 +7,7 @@ benchmarks/gpu_suite.py adds the default loop over instant steps as a "host loop
 on the device's own CPU beside its GPU rows.
 
     PYTHONPATH=. python benchmarks/host_loop.py [--batches 1,64,256,1024] [--repeats 3] [--draw-groups 128,0]
-        [--loops default,momask]
+        [--loops default,momask,t2m-gpt]
 
 --draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows),
 alternating within each repeat. To compare checkouts, copy this file into the other checkout's benchmarks/ and run

@@ -10,7 +10,7 @@ capture a step once and replay it (`enable_cuda_graph`, t2m/service/engine/graph
 Every reshape uses constants (-1 for the batch), so the exported graph has no shape arithmetic on the batch; each
 row has its own position, so rows need not be in lockstep. The masked positions add exact zeros to the softmax and
 to the weighted sum of values, so the logits equal `forward_step`'s up to the order of float additions
-(tests/export/test_fixed_cache.py).
+(tests/service/test_graphed_step.py).
 """
 from __future__ import annotations
 
