@@ -13,6 +13,10 @@ with the engine's own timeline. Re-record only when that model itself changes:
     python tests/data/record_model_outputs.py t2m/bundles/default tests/data/default_model_outputs.npz
     python tests/data/record_model_outputs.py t2m/bundles/gpt tests/data/gpt_model_outputs.npz
     python tests/data/record_model_outputs.py t2m/bundles/masked tests/data/masked_model_outputs.npz
+
+A machine type whose CPU gives other codes for the same model (other SIMD kernels, other last bits) gets a recording
+of its own beside the first, made with the code that matched the first one on its machine, e.g.
+tests/data/masked_model_outputs.epyc-avx512.npz (AMD EPYC with AVX-512 VNNI, 2026-11-27); the test accepts any.
 """
 from __future__ import annotations
 

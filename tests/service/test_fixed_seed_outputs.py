@@ -15,6 +15,11 @@ decode did not change. (b) The served motion is the recording fitted by the engi
 its spans are the exact ones: 3 + 2 + 2 s gives (0, 60), (60, 100), (100, 140) on every model, where the default
 model (8 frames per step) decoded (0, 64), (64, 104), (104, 144). Re-recording the fitted motion instead would have
 let a change of codes hide behind a change of timeline.
+
+A model may have more than one recording (tests/data/<stem>.<machine>.npz): the masked model's int8 graphs give
+other codes on an AMD EPYC with AVX-512 (VNNI) than on the machine that recorded it (every frame differed,
+2026-11-27), as a sampled model's codes do once one logit's last bits differ. The motions must equal one of the
+recordings; a change of the service's code matches none of them.
 """
 from __future__ import annotations
 
@@ -56,19 +61,32 @@ def _fitted(recorded: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return fitted
 
 
-@pytest.mark.parametrize("model, recording", [("gpt_model", "gpt_model_outputs.npz"),
-                                              ("default_model", "default_model_outputs.npz"),
-                                              ("masked_model", "masked_model_outputs.npz")])
-def test_model_outputs_match_the_recording(model, recording, request):
+def recordings(stem: str) -> list[Path]:
+    """The model's recordings: the first one made, then one per machine type whose CPU computes other bits."""
+    return sorted(DATA.glob(f"{stem}*.npz"), key=lambda path: (path.name != f"{stem}.npz", path.name))
+
+
+@pytest.mark.parametrize("model, stem", [("gpt_model", "gpt_model_outputs"),
+                                         ("default_model", "default_model_outputs"),
+                                         ("masked_model", "masked_model_outputs")])
+def test_model_outputs_match_the_recording(model, stem, request):
     from t2m.service.engine.engine import OnnxEngine
 
-    expected = dict(np.load(DATA / recording))
     engine = OnnxEngine.load(request.getfixturevalue(model), intra_op_threads=1)
     served = record(engine)
     engine.exact_durations = False
     decoded = record(engine)
     assert len(CASES) == 3
-    _compare(decoded, expected, "decoded (codes unchanged)")
-    _compare(served, _fitted(expected), "served (the recording fitted)")
     for name, spans in EXACT_SPANS.items():
         assert served[name + "_spans"].tolist() == spans, name
+    mismatches = []
+    for path in recordings(stem):
+        expected = dict(np.load(path))
+        try:
+            _compare(decoded, expected, "decoded (codes unchanged)")
+            _compare(served, _fitted(expected), "served (the recording fitted)")
+            return
+        except AssertionError as error:
+            mismatches.append(f"{path.name}: {str(error).strip().splitlines()[0]}")
+    pytest.fail("the motions match none of the recordings (on a machine type without one of its own, record one "
+                "as tests/data/record_model_outputs.py says):\n" + "\n".join(mismatches))
