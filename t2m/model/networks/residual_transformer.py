@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from t2m.model.networks.token_transformer import OutputProcess, TokenMapEncoder, TokenTransformerConfig
+from t2m.model.networks.token_transformer import OutputProcess, TokenMapEncoder, TokenTransformerConfig, index_range
 
 
 class ResidualTransformer(TokenMapEncoder):
@@ -81,9 +81,9 @@ class ResidualTransformer(TokenMapEncoder):
         codes = codes[..., :known]
         codes = torch.where(codes < 0, torch.full_like(codes, self.pad_id), codes.clamp(max=self.pad_id))
         tables = self.input_tables()[:known]  # [k, K+1, d]
-        offsets = torch.arange(known, device=codes.device) * tables.shape[1]
+        offsets = index_range(known, codes) * tables.shape[1]
         embedded = F.embedding(codes + offsets, tables.reshape(-1, tables.shape[-1]))  # [B, T, C, k, d]
-        used = (torch.arange(known, device=codes.device)[None, :] < layer[:, None]).to(embedded.dtype)  # [B, k]
+        used = (index_range(known, codes)[None, :] < layer[:, None]).to(embedded.dtype)  # [B, k]
         return (embedded * used[:, None, None, :, None]).sum(dim=3)
 
     def forward(

@@ -21,6 +21,7 @@ ONNX graph whose sequence length is fixed at export.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -31,6 +32,20 @@ from t2m.model.networks.config import ConfigDict
 from t2m.model.networks.gpt import sinusoid_table
 
 POSITIONAL = ("1d", "2d")
+
+
+def index_range(count: int, like: torch.Tensor) -> torch.Tensor:
+    """0 .. count-1 (int64) on `like`'s device, as a cumulative sum of ones rather than torch.arange: exported with a
+    traced count, arange becomes a Range node fed by Shape, which onnxruntime's CUDA provider runs on the CPU, so its
+    output is copied to the device inside every run and the graph cannot be captured as a CUDA graph
+    (t2m/export/graphs/capture_check.py)."""
+    return torch.ones(count, dtype=torch.long, device=like.device).cumsum(0) - 1
+
+
+def attention_scale(head_dim: int) -> float:
+    """scaled_dot_product_attention's default scale, given as a number: left to the exporter, it is computed from
+    the query's Shape on the CPU (see `index_range`). The same double as torch's default, 1 / sqrt(E)."""
+    return 1.0 / math.sqrt(head_dim)
 
 
 @dataclass
@@ -98,7 +113,7 @@ def release_spatial_layout(spatial: torch.Tensor, length: torch.Tensor) -> torch
     (n mod L, n div L). Done per batch row with that row's own L, by one gather (static shapes, so it exports);
     rows past L keep their own (zero) output. spatial [B, T, C, D], length [B] -> [B, T, C, D]."""
     batch, rows, columns, dim = spatial.shape
-    slot = torch.arange(rows * columns, device=spatial.device)[None, :]
+    slot = index_range(rows * columns, spatial)[None, :]
     rows_of = length.clamp(min=1)[:, None]
     source = torch.where(slot < rows_of * columns, (slot % rows_of) * columns + slot // rows_of, slot)
     flat = spatial.reshape(batch, rows * columns, dim)
@@ -155,7 +170,8 @@ class SelfAttention(nn.Module):
         qkv = F.linear(x, self.in_proj_weight, self.in_proj_bias).unflatten(-1, (3, self.heads, dim // self.heads))
         q, k, v = qkv.permute(2, 0, 3, 1, 4)  # each [N, H, S, hd]
         mask = None if keys is None else keys[:, None, None, :]
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.dropout if self.training else 0.0)
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.dropout if self.training else 0.0,
+                                           scale=attention_scale(dim // self.heads))
         return self.out_proj(y.transpose(1, 2).flatten(2))
 
 
@@ -252,7 +268,7 @@ class TokenMapEncoder(nn.Module):
     @staticmethod
     def valid_rows(length: torch.Tensor, rows: int) -> torch.Tensor:
         """[B, T] bool: row t is a real token row (t < length)."""
-        return torch.arange(rows, device=length.device)[None, :] < length[:, None]
+        return index_range(rows, length)[None, :] < length[:, None]
 
     def encode(self, motion: torch.Tensor, prefix: torch.Tensor, length: torch.Tensor) -> torch.Tensor:
         """motion [B, T, C, D] embedded tokens, prefix [B, P, D], length [B] -> features [B, T, C, D]."""

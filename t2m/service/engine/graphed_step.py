@@ -116,12 +116,15 @@ class FixedCacheGptStep:
         """(cond [n, Dt], previous token [n], position, length [n], the cohort's cache) for its n live rows ->
         (logits [n, V+1], the same cache, one position further)."""
         rows, host = past.rows, past.host
-        host["cond"][rows], host["token"][rows] = cond, token
+        changed = {"token", "position"}          # cond and length stay a cohort's while its rows do
+        for name, value in (("cond", cond), ("length", length)):
+            if name in host and not np.array_equal(host[name][rows], value):
+                host[name][rows] = value
+                changed.add(name)
+        host["token"][rows] = token
         host["position"][:] = position
-        if self.has_length_input:
-            host["length"][rows] = length
-        for name, value in host.items():
-            past.device[name].update_inplace(value)
+        for name in changed:                     # each copy to the device is a synchronous call
+            past.device[name].update_inplace(host[name])
         self.session.run_with_iobinding(past.bindings[past.parity],
                                         run_options(self.cuda_graph, past.graph_ids[past.parity]))
         past.parity ^= 1
