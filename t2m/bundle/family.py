@@ -151,6 +151,12 @@ class ModelFamily:
         `quantization.<file stem>`. The text encoder (run once per request; `t2m export --int8 text` is its
         option), the decoder and the length graph are not among them. None: the family has nothing to quantise."""
         return ()
+
+    def replayable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """The graph files the engine may replay as CUDA graphs (T2M_CUDA_GRAPHS, engine/graphed_step.py): graphs
+        without a cache, called through `session.run` by the family's steps, whose shapes repeat over a request's
+        passes. None by default: a family with a growing cache changes its shapes every step."""
+        return ()
     export_needs_vq: ClassVar[bool] = False                           # `t2m export` refuses it without --vq RUN
 
     def export(self, args: argparse.Namespace, int8: Any) -> tuple[dict, dict]:

@@ -221,6 +221,10 @@ class MaskedFamily(ModelFamily):
         return tuple(name for name in self.required_files(manifest)
                      if name.endswith(".onnx") and name.startswith(("masked", "residual")))
 
+    def replayable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """The token graphs: each mask pass and each residual pass of a batch calls them with the same shapes."""
+        return self.quantizable_graphs(manifest)
+
     def graphs(self, manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
         """masked.onnx, residual.onnx (R > 1), each branch's pair, length.onnx (with an estimator), decoder.onnx over
         [B, T, C, R] maps (C: the primary columns plus every branch's)."""

@@ -143,7 +143,27 @@ def test_a_graphed_session_gives_the_sessions_outputs_with_buffers_per_shape(tmp
                     np.testing.assert_array_equal(b, a)
                 assert graphed.run(["logits"], feeds)[0].shape == (batch, 33)
                 past = got[1]
-    assert len(graphed._calls) == 2 * 4      # (batch, past length) pairs, bound once each
+    assert graphed.captured_shapes == 2 * 4  # (batch, past length) pairs, bound once each
     kept = graphed.run(None, feeds)[0]
     graphed.run(None, {**feeds, "cond": feeds["cond"] + 1.0})   # the same shape: its buffers are overwritten...
     np.testing.assert_array_equal(kept, plain.run(None, feeds)[0])   # ...but not what an earlier call returned
+
+
+def test_shapes_past_the_cap_run_plainly_with_the_same_outputs(tmp_path):
+    """Each captured shape holds device memory for the session's life: past `max_shapes` a new shape is run as a
+    plain call (graph id -1), the same numbers, nothing more kept."""
+    gpt = _gpt(True)
+    c = gpt.config
+    path = export_gpt_step(gpt, tmp_path / "gpt_step.onnx")
+    plain = ort_session(path)
+    graphed = GraphedSession(graph_session(path, ["CPUExecutionProvider"], cuda_graph=True), cuda_graph=True,
+                             max_shapes=2)
+    rng = np.random.default_rng(1)
+    for batch in (1, 2, 3, 4, 1):
+        feeds = {"cond": rng.normal(size=(batch, 16)).astype(np.float32), "token": rng.integers(0, 32, batch),
+                 "position": np.asarray([0]), "length": np.full(batch, 3),
+                 "past_kv": np.zeros((c.n_layer, 2, batch, c.n_head, 0, c.head_dim), np.float32)}
+        for a, b in zip(plain.run(None, feeds), graphed.run(None, feeds)):
+            np.testing.assert_array_equal(b, a)
+    assert graphed.captured_shapes == 2
+    assert graphed.get_inputs() == graphed.session.get_inputs()     # the rest is the session's

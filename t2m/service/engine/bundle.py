@@ -30,7 +30,8 @@ from t2m.bundle import (
     required_files,
 )
 from t2m.bundle.manifest import INT8_LABELS
-from t2m.service.engine.execution import Execution, check_available
+from t2m.service.engine.execution import Execution, ProviderError, check_available
+from t2m.service.engine.graphed_step import GraphedSession, graph_session
 
 __all__ = ["Bundle", "BundleError", "Execution", "Manifest", "load_bundle", "open_session", "session_options"]
 
@@ -59,6 +60,24 @@ def session_options(intra_op_threads: int = 0, inter_op_threads: int = 1) -> ort
     options.inter_op_num_threads = inter_op_threads
     options.log_severity_level = 3
     return options
+
+
+def open_replayed(file: Path, options: ort.SessionOptions, execution: Execution) -> GraphedSession:
+    """A replayable graph's session, capturing CUDA graphs where its CUDA provider can (engine/graphed_step.py). A
+    graph exported before its shape arithmetic was kept off the CPU (Range or an attention scale fed by Shape:
+    t2m/export/graphs/capture_check.py) is refused capture by onnxruntime; it is served without, with a warning
+    saying how to get one that captures."""
+    try:
+        session = graph_session(file, execution.ort_providers, cuda_graph=True, options=options)
+        execution.check_session(session, file.name)
+        return GraphedSession(session, cuda_graph=execution.on_gpu, max_shapes=execution.graph_shapes)
+    except ProviderError:
+        raise
+    except Exception as error:   # onnxruntime's Fail: "cannot use the graph capture feature ..."
+        log.warning("T2M_CUDA_GRAPHS: %s cannot be captured as a CUDA graph (%s); serving it without. Graphs "
+                    "exported or imported by this version capture (t2m/export/graphs/capture_check.py)",
+                    file, str(error).splitlines()[0][:200])
+        return GraphedSession(open_session(file, options, execution), cuda_graph=False, max_shapes=0)
 
 
 def open_session(file: Path | bytes, options: ort.SessionOptions,
@@ -98,6 +117,9 @@ class Bundle:
     std: np.ndarray
     sessions: dict[str, ort.InferenceSession] = field(default_factory=dict)
     execution: Execution = field(default_factory=Execution)
+    # with T2M_CUDA_GRAPHS: the family's replayable graphs (their sessions are also in `sessions`) wrapped to be
+    # replayed as CUDA graphs; the family's steps call these instead
+    replays: dict[str, GraphedSession] = field(default_factory=dict)
 
     @property
     def encoder_session(self) -> ort.InferenceSession | None:
@@ -148,13 +170,18 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
     check_files(path, manifest.files, check_hashes=check_hashes, required=required_files(raw))
     get_family(manifest.family).check_servable(manifest)
     options = session_options(intra_op_threads, inter_op_threads)
-    sessions = {}
+    replayable = set(get_family(manifest.family).replayable_graphs(raw)) if execution.cuda_graphs else set()
+    sessions, replays = {}, {}
     for file in bundle_graphs(raw):
-        sessions[file] = open_session(path / file, options, execution)
+        if file in replayable:
+            replays[file] = open_replayed(path / file, options, execution)
+            sessions[file] = replays[file].session
+        else:
+            sessions[file] = open_session(path / file, options, execution)
         _check_session(sessions[file], file, manifest)
     log.info("loaded bundle %s %s (%s) from %s", manifest.name, manifest.version, manifest.family, path)
     _warn_int8_on_gpu(raw, path, execution)
     return Bundle(path=path, manifest=manifest, text_session=sessions["text_encoder.onnx"],
                   decoder_session=sessions["decoder.onnx"], mean=_load_array(path / "mean.npy", manifest),
                   std=_load_array(path / "std.npy", manifest), sessions=sessions,
-                  execution=execution)
+                  execution=execution, replays=replays)

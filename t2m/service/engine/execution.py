@@ -61,11 +61,17 @@ class Execution:
 
     providers: tuple[str, ...] = ("cpu",)
     io_binding: IoBinding = "auto"
+    # the family's replayable graphs (masked, residual) captured as CUDA graphs, up to `graph_shapes` input shapes
+    # per graph (engine/graphed_step.py); on the CPU provider the same buffers without capture (the tests)
+    cuda_graphs: bool = False
+    graph_shapes: int = 16
 
     def __post_init__(self) -> None:
         ort_providers(self.providers)   # unknown names fail here, naming the setting
         if self.io_binding not in ("auto", "on", "off"):
             raise ProviderError(f"T2M_IO_BINDING: must be auto, on or off, got {self.io_binding!r}")
+        if self.graph_shapes < 1:
+            raise ProviderError(f"T2M_CUDA_GRAPH_SHAPES: must be at least 1, got {self.graph_shapes}")
 
     @property
     def ort_providers(self) -> list[str]:

@@ -146,18 +146,30 @@ class GraphedSession:
     for its inputs and outputs, bound once, and a graph id of its own. Each call copies its inputs into the buffers
     and its outputs back. A drop-in for `InferenceSession.run(names, feeds)` in the steps of engine/onnx_step.py.
 
-    Every shape keeps its buffers and its captured graph for the session's life, so this suits loops whose shapes
-    repeat (a batch of 10 s motions: the same shapes at every pass), not a server's ever-new lengths."""
+    Every shape keeps its buffers and its captured graph for the session's life (onnxruntime has no call that
+    frees one graph id's capture), so at most `max_shapes` shapes are captured, the first ones seen; later shapes run
+    plainly (graph id -1). That suits loops whose shapes repeat (a batch of 10 s motions: the same shapes at every
+    pass), and bounds the device memory of a server's ever-new batch sizes and lengths. Other attributes
+    (get_inputs, get_providers) are the session's. One caller at a time (the engine's worker)."""
 
-    def __init__(self, session: ort.InferenceSession, cuda_graph: bool) -> None:
-        self.session, self.cuda_graph = session, cuda_graph
+    def __init__(self, session: ort.InferenceSession, cuda_graph: bool, max_shapes: int = 16) -> None:
+        self.session, self.cuda_graph, self.max_shapes = session, cuda_graph, max_shapes
         self.device = session_device(session)
         self.output_names = [value.name for value in session.get_outputs()]
         self._calls: dict[tuple, tuple[dict[str, ort.OrtValue], dict[str, ort.OrtValue], Any, int]] = {}
 
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.session, name)
+
+    @property
+    def captured_shapes(self) -> int:
+        return len(self._calls)
+
     def run(self, output_names: list[str] | None, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
         feeds = {name: np.ascontiguousarray(value) for name, value in feeds.items()}
         key = tuple((name, value.shape, value.dtype.str) for name, value in sorted(feeds.items()))
+        if key not in self._calls and len(self._calls) >= self.max_shapes:
+            return self.session.run(output_names, feeds, run_options(self.cuda_graph, -1))
         if key not in self._calls:
             first = self.session.run(None, feeds, run_options(self.cuda_graph, -1))   # only the shapes
             inputs = {name: ort.OrtValue.ortvalue_from_numpy(value, self.device, 0) for name, value in feeds.items()}

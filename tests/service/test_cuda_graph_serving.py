@@ -1,0 +1,60 @@
+"""T2M_CUDA_GRAPHS in the service: the masked family's token graphs are opened to be replayed as CUDA graphs and
+its steps call them through GraphedSession. Here on the CPU provider (the same buffers, no capture; onnxruntime's
+CPU provider ignores graph ids), which is how their numbers are checked: a seed gives the plain engine's motion.
+On an H100 the same graphs were captured and gave the plain calls' codes (docs/measurements/
+gpu_suite_h100_2026-11-27.log)."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from t2m.service.engine.engine import OnnxEngine
+from t2m.service.engine.execution import Execution
+from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.service.settings import Settings
+
+REQUEST = GenerationRequest([SegmentRequest("a person walks forward", 2.0), SegmentRequest("a person bows", 1.5)],
+                            seed=11, guidance=3.0)
+
+
+def test_the_replayed_graphs_give_the_plain_engines_motion(masked_model):
+    plain = OnnxEngine.load(masked_model, intra_op_threads=1)
+    replayed = OnnxEngine.load(masked_model, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert sorted(replayed.bundle.replays) == ["masked.onnx", "residual.onnx"] and not plain.bundle.replays
+    for _ in range(2):                                 # the second time through, every shape's buffers are reused
+        np.testing.assert_array_equal(replayed.generate(REQUEST).joints, plain.generate(REQUEST).joints)
+    assert all(0 < graph.captured_shapes <= 16 for graph in replayed.bundle.replays.values())
+    # /health's model details name what is captured: nothing on the CPU provider
+    assert replayed.limits.details["execution"] == {"providers": ["cpu"], "cuda_graphs": []}
+
+
+def test_a_graph_onnxruntime_will_not_capture_is_served_without(masked_model, monkeypatch, caplog):
+    """An older export (Range or an attention scale fed by Shape) makes onnxruntime refuse the session with
+    enable_cuda_graph; the service warns and serves the graph plainly."""
+    import t2m.service.engine.bundle as bundle_module
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("[ONNXRuntimeError] : 1 : FAIL : This session cannot use the graph capture feature")
+
+    monkeypatch.setattr(bundle_module, "graph_session", refuse)
+    with caplog.at_level(logging.WARNING):
+        engine = OnnxEngine.load(masked_model, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert "cannot be captured as a CUDA graph" in caplog.text and "masked.onnx" in caplog.text
+    plain = OnnxEngine.load(masked_model, intra_op_threads=1)
+    np.testing.assert_array_equal(engine.generate(REQUEST).joints, plain.generate(REQUEST).joints)
+    assert all(graph.captured_shapes == 0 for graph in engine.bundle.replays.values())
+
+
+def test_cuda_graphs_without_the_cuda_provider_are_refused_naming_both_settings():
+    with pytest.raises(ValidationError, match="T2M_CUDA_GRAPHS=true needs T2M_EXECUTION_PROVIDERS=cuda"):
+        Settings(cuda_graphs=True)
+    execution = Settings(cuda_graphs=True, cuda_graph_shapes=4, execution_providers=["cuda"]).execution
+    assert execution.cuda_graphs and execution.graph_shapes == 4
+
+
+def test_families_with_a_growing_cache_replay_nothing(default_model):
+    engine = OnnxEngine.load(default_model, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert engine.bundle.replays == {}
