@@ -134,3 +134,17 @@ def test_host_loop_prints_one_row_per_loop_batch_and_draw_group():
     assert [(loop.split(" ")[0], group, batch) for loop, group, batch in rows] == [
         (loop, group, batch) for loop in ("default", "MoMask", "T2M-GPT") for batch in ("1", "3")
         for group in ("2", "all")]
+
+
+def test_gpu_service_check_serves_an_import_with_and_without_cuda_graphs_on_cpu(tmp_path):
+    """The device script for the service's CUDA-graph path, run here at small sizes: one row per setting and the
+    two motions equal (on the CPU provider nothing is captured)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("onnx")
+    result = subprocess.run(
+        [sys.executable, str(REPO / "benchmarks" / "gpu_service_check.py"), "--device", "cpu", "--sizes", "small",
+         "--repeats", "1", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
+    table = (tmp_path / "gpu_service_check.md").read_text()
+    assert "| cpu | off |" in table and "| cpu | on |" in table and table.count("| [] |") == 2
+    assert "two motions: 0.00e+00 m" in table
