@@ -1,8 +1,8 @@
 """The service's CUDA-graph path end to end (issue 29): a MoMask import at its release sizes (random weights in the
 release's exact checkpoint layout, a small random CLIP) served by the engine plainly and with T2M_CUDA_GRAPHS,
-one 9.8 s request (49 token rows, the release's longest) at a time: ms per request (text, codes, decode), whether the motions are the same, and what
-/health says is captured. On 'cpu' the same code runs without capture (the check that this script works before
-it spends device time).
+one 9.8 s request (49 token rows, the release's longest) at a time: ms per request (text, codes, decode),
+whether the motions are the same, and what /health says is captured. On 'cpu' the same code runs without capture
+(the check that this script works before it spends device time).
 
     python benchmarks/gpu_service_check.py --device cuda [--sizes release|small] [--repeats 5]
 """
@@ -18,12 +18,17 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / "tests" / "export")]
+sys.path[:0] = [str(REPO), str(REPO / "tests" / "export")]   # the tests' release-layout writers
 
 
 def build_import(workdir: Path, release_sizes: bool) -> Path:
     """`t2m import momask` of random release-layout checkpoints: the bundle folder."""
-    from momask_release_files import RELEASE, SMALL, release_states, write_release
+    from momask_release_files import (  # type: ignore[import-not-found]
+        RELEASE,
+        SMALL,
+        release_states,
+        write_release,
+    )
 
     from t2m.export.importers.momask import import_momask
     from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
