@@ -152,6 +152,12 @@ class ModelFamily:
         option), the decoder and the length graph are not among them. None: the family has nothing to quantise."""
         return ()
 
+    def captured_graphs(self, manifest: Mapping[str, Any]) -> dict[str, Any]:
+        """Optional graphs a bundle may carry (listed in its `files`) only for T2M_CUDA_GRAPHS: a step over fixed
+        device buffers that the family's own step class captures and replays (engine/graphed_step.py). Opened only
+        with that setting. None by default."""
+        return {}
+
     def replayable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         """The graph files the engine may replay as CUDA graphs (T2M_CUDA_GRAPHS, engine/graphed_step.py): graphs
         without a cache, called through `session.run` by the family's steps, whose shapes repeat over a request's

@@ -101,10 +101,14 @@ def encoder_graph(manifest: Mapping[str, Any]) -> GraphSpec | None:
 
 
 def bundle_graphs(manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
-    """Every graph a bundle of this manifest holds, with its signature: the expected ones, then encoder.onnx where
-    the manifest's `files` lists it (optional: a bundle without one is valid and cannot encode uploaded motions)."""
+    """Every graph a bundle of this manifest holds, with its signature: the expected ones, the family's captured
+    graphs and encoder.onnx where the manifest's `files` lists them (optional: a bundle without an encoder is valid
+    and cannot encode uploaded motions; one without a captured graph has no CUDA-graph step)."""
+    listed = manifest.get("files", {})
     graphs = expected_graphs(manifest)
-    if ENCODER_GRAPH not in manifest.get("files", {}):
+    captured = get_family(family_of(manifest)).captured_graphs(manifest)   # e.g. gpt_step_fixed.onnx
+    graphs.update({file: spec for file, spec in captured.items() if file in listed})
+    if ENCODER_GRAPH not in listed:
         return graphs
     encoder = encoder_graph(manifest)
     if encoder is None:

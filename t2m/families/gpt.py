@@ -28,6 +28,7 @@ from t2m.bundle.manifest import (
 __all__ = ["FAMILY", "GPT_FIELDS", "REQUIRED_FILES", "GptFamily", "GptSettings"]
 
 REQUIRED_FILES = (*COMMON_FILES[:2], "gpt_step.onnx", *COMMON_FILES[2:])
+FIXED_STEP_GRAPH = "gpt_step_fixed.onnx"   # optional: the step for CUDA graphs (captured_graphs)
 GPT_FIELDS: dict[str, FieldRule] = {
     "end_id": (is_int, "an integer"),
     "gpt.n_layer": POSITIVE,
@@ -109,6 +110,20 @@ class GptFamily(ModelFamily):
             "decoder.onnx": GraphSpec(inputs=(TensorSpec("codes", INT64, codes_shape),),
                                       outputs=features_output(manifest)),
         }
+
+    def captured_graphs(self, manifest: Mapping[str, Any]) -> dict[str, GraphSpec]:
+        """gpt_step_fixed.onnx (`t2m import t2m-gpt --cuda-graph-step`): the step over a cache of block_size
+        positions with a position per row (t2m/model/networks/fixed_cache.py), for CUDA graphs."""
+        gpt = manifest["gpt"]
+        kv = (gpt["n_layer"], 2, None, gpt["n_head"], gpt["block_size"], gpt["head_dim"])
+        inputs = [TensorSpec("cond", FLOAT32, (None, manifest["text_encoder"]["dim"])),
+                  TensorSpec("token", INT64, (None,)), TensorSpec("position", INT64, (None,))]
+        if gpt["length_conditioning"]:
+            inputs.append(TensorSpec("length", INT64, (None,)))
+        inputs.append(TensorSpec("past_kv", FLOAT32, kv))
+        return {FIXED_STEP_GRAPH: GraphSpec(
+            inputs=tuple(inputs), outputs=(TensorSpec("logits", FLOAT32, (None, manifest["codebook_size"] + 1)),
+                                           TensorSpec("present_kv", FLOAT32, kv)))}
 
     def settings(self, manifest: Mapping[str, Any]) -> GptSettings:
         gpt = manifest["gpt"]

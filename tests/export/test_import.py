@@ -282,3 +282,25 @@ def test_full_vit_b_32_text_tower_through_import(small_release, tmp_path, capsys
     out = tmp_path / "imported"
     assert run_import(small_release, clip, out) == 0, capsys.readouterr().err
     assert check_clip_text_graph(out, clip) <= 1e-5
+
+
+def test_cuda_graph_step_import_adds_the_fixed_step_with_the_same_codes(small_release, clip_sized_text_bundle,
+                                                                         tmp_path, capsys):
+    """`--cuda-graph-step`: gpt_step_fixed.onnx in the bundle (hashed, checked against the manifest), serving the
+    release's codes through FixedCacheGptStep when T2M_CUDA_GRAPHS is on (here on the CPU provider)."""
+    from t2m.service.engine.engine import OnnxEngine
+    from t2m.service.engine.execution import Execution
+    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+
+    f = small_release
+    out = tmp_path / "imported"
+    code = t2m(["import", "t2m-gpt", "--vq", str(f["net_last.pth"]), "--gpt", str(f["net_best_fid.pth"]),
+                "--mean", str(f["mean.npy"]), "--std", str(f["std.npy"]), "--skip-parity", "--cuda-graph-step",
+                "--text-encoder-bundle", str(clip_sized_text_bundle), "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert "gpt_step_fixed.onnx" in json.loads((out / "manifest.json").read_text())["files"]
+    request = GenerationRequest([SegmentRequest("a person walks", 2.0)], seed=1)
+    plain = OnnxEngine.load(out, intra_op_threads=1).generate(request)
+    fixed_engine = OnnxEngine.load(out, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert type(fixed_engine.codes.step).__name__ == "FixedCacheGptStep"
+    np.testing.assert_array_equal(fixed_engine.generate(request).joints, plain.joints)

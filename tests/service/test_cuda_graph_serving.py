@@ -55,6 +55,51 @@ def test_cuda_graphs_without_the_cuda_provider_are_refused_naming_both_settings(
     assert execution.cuda_graphs and execution.graph_shapes == 4
 
 
-def test_families_with_a_growing_cache_replay_nothing(default_model):
-    engine = OnnxEngine.load(default_model, intra_op_threads=1, execution=Execution(cuda_graphs=True))
-    assert engine.bundle.replays == {}
+def test_families_with_a_growing_cache_replay_nothing(default_model, gpt_model):
+    for model in (default_model, gpt_model):
+        engine = OnnxEngine.load(model, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+        assert engine.bundle.replays == {} and "gpt_step_fixed.onnx" not in engine.bundle.sessions
+
+
+@pytest.fixture(scope="module")
+def fixed_step_bundle(tmp_path_factory):
+    """A GPT-family bundle that carries gpt_step_fixed.onnx (`t2m import t2m-gpt --cuda-graph-step`)."""
+    from t2m.export.families.gpt_random import build_random_bundle
+
+    return build_random_bundle(tmp_path_factory.mktemp("fixed") / "gpt", block_size=40, fixed_step=True)
+
+
+GPT_REQUESTS = [GenerationRequest([SegmentRequest("a person walks forward", 2.0)], seed=4, guidance=3.0),
+                GenerationRequest([SegmentRequest("a person jumps", None), SegmentRequest("a person sits", 1.0)],
+                                  seed=9, guidance=1.0, top_k=5)]
+
+
+def test_the_gpt_familys_fixed_step_serves_with_cuda_graphs_only(fixed_step_bundle):
+    """Listed and verified like any bundle file, opened only with T2M_CUDA_GRAPHS; then the cohorts step through
+    FixedCacheGptStep and give the plain step's motions (the same codes on the CPU provider)."""
+    from t2m.service.engine.graphed_step import FixedCacheGptStep
+    from t2m.service.engine.onnx_step import OnnxGptStep
+
+    plain = OnnxEngine.load(fixed_step_bundle, intra_op_threads=1)
+    fixed = OnnxEngine.load(fixed_step_bundle, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert "gpt_step_fixed.onnx" not in plain.bundle.sessions and type(plain.codes.step) is OnnxGptStep
+    assert isinstance(fixed.codes.step, FixedCacheGptStep)
+    for request in GPT_REQUESTS * 2:          # the second time through, a finished cohort's buffers are reused
+        want, got = plain.generate(request), fixed.generate(request)
+        assert [(s.start_frame, s.end_frame) for s in got.segments] == \
+            [(s.start_frame, s.end_frame) for s in want.segments]
+        np.testing.assert_array_equal(got.joints, want.joints)
+
+
+def test_a_fixed_step_onnxruntime_will_not_capture_leaves_the_plain_step(fixed_step_bundle, monkeypatch, caplog):
+    import t2m.service.engine.bundle as bundle_module
+    from t2m.service.engine.onnx_step import OnnxGptStep
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("[ONNXRuntimeError] : 1 : FAIL : This session cannot use the graph capture feature")
+
+    monkeypatch.setattr(bundle_module, "graph_session", refuse)
+    with caplog.at_level(logging.WARNING):
+        engine = OnnxEngine.load(fixed_step_bundle, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert "gpt_step_fixed.onnx cannot be captured" in caplog.text
+    assert type(engine.codes.step) is OnnxGptStep

@@ -49,6 +49,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t2m.add_argument("--heads", type=int, default=None, help="attention heads (default embed / 64)")
     t2m.add_argument("--int8", choices=("none", "text", "gpt", "all"), default="none")
     t2m.add_argument("--name", default="t2m-gpt-humanml3d")
+    t2m.add_argument("--cuda-graph-step", action="store_true",
+                     help="also write gpt_step_fixed.onnx, the step over a fixed-capacity cache that "
+                          "T2M_CUDA_GRAPHS=true replays on a GPU (float32; a second copy of the GPT's weights)")
     add_common_options(t2m)
     t2m.set_defaults(func=run_t2m_gpt)
     register_momask(sources)
@@ -169,6 +172,7 @@ def run_t2m_gpt(args: argparse.Namespace) -> int:
         args.vq, args.gpt, args.mean, args.std, args.output, clip_weights=args.clip,
         text_encoder_bundle=args.text_encoder_bundle, heads=args.heads, name=args.name, version=args.version,
         int8=args.int8, check_parity=not args.skip_parity, allow_pickle=args.allow_pickle, quantize=args.quantize,
+        fixed_step=args.cuda_graph_step,
     )
     print(json.dumps({"parity": checks.parity, "int8": checks.int8, **_quantization(checks)}, indent=2))
     _report("T2M-GPT", manifest, args.output, args)

@@ -21,11 +21,12 @@ import numpy as np
 
 from t2m.export.graphs.decoder import export_decoder
 from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
-from t2m.export.graphs.gpt import export_gpt_step
+from t2m.export.graphs.gpt import export_gpt_fixed_cache_step, export_gpt_step
 from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, ROW_INT8_LABEL, quantize_in_place, text_int8_line
 from t2m.export.kit.runs import normalisation, run_record, run_training_data
 from t2m.export.kit.text_sources import TextSource, clip_text_source, minilm_text_source
 from t2m.export.writing.bundle import check_out_dir, motion_fields, prepare_out_dir, render_model_card, write_bundle
+from t2m.families.gpt import FIXED_STEP_GRAPH
 from t2m.model.networks.gpt import MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE
 
@@ -113,8 +114,11 @@ def export_bundle(
     check_parity: bool = False,
     parity_steps: int = 50,
     encoder: bool = True,
+    fixed_step: bool = False,
 ) -> tuple[dict, ExportChecks]:
     """Export ``vq`` + ``gpt`` + a text encoder as a verified bundle in ``out_dir``; return (manifest, checks).
+    ``fixed_step`` adds gpt_step_fixed.onnx, the step that T2M_CUDA_GRAPHS replays (a second float32 copy of the
+    GPT's weights).
 
     Everything is built and verified in a sibling staging directory first and moved into ``out_dir``
     only when complete, so a failed export leaves neither a half bundle nor a damaged earlier one.
@@ -132,7 +136,7 @@ def export_bundle(
             staging, vq=vq.eval(), gpt=gpt.eval(), mean=mean, std=std, text_source=text_source, name=name,
             version=version, unconditional_branch=unconditional_branch, default_guidance=default_guidance,
             training_data=training_data, license=license, int8=int8, notes=notes, check_parity=check_parity,
-            parity_steps=parity_steps, encoder=encoder)
+            parity_steps=parity_steps, encoder=encoder, fixed_step=fixed_step)
         prepare_out_dir(out_dir)
         for file in sorted(staging.iterdir(), key=lambda f: f.name == "manifest.json"):  # manifest last
             file.replace(out_dir / file.name)
@@ -145,6 +149,7 @@ def _export_into(
     out_dir: Path, *, vq: MotionVQVAE, gpt: MotionGPT, mean: np.ndarray, std: np.ndarray, text_source: TextSource,
     name: str, version: str, unconditional_branch: bool, default_guidance: float, training_data: Mapping[str, str],
     license: str, int8: str, notes: str, check_parity: bool, parity_steps: int, encoder: bool = True,
+    fixed_step: bool = False,
 ) -> tuple[dict, ExportChecks]:
     from t2m.export.kit.parity import bundle_parity
     from t2m.export.writing.quantize import gpt_int8_report, text_int8_report
@@ -155,6 +160,9 @@ def _export_into(
         raise ValueError(f"text encoder dim {text_entry['dim']} != GPT text_dim {gpt.config.text_dim}")
     log.info("exporting the GPT step graph")
     export_gpt_step(gpt, out_dir / "gpt_step.onnx")
+    if fixed_step:
+        log.info("exporting the fixed-capacity step graph (CUDA graphs)")
+        export_gpt_fixed_cache_step(gpt, out_dir / FIXED_STEP_GRAPH)
     log.info("exporting the decoder")
     export_decoder(vq, mean, std, out_dir / "decoder.onnx")
     rank = 2 if vq.config.quantizer != "residual" else 3   # the decoder's codes: [B, T] or [B, T, R]
@@ -200,7 +208,7 @@ def _export_into(
     (out_dir / "MODEL_CARD.md").write_text(render_model_card(manifest, card_notes), encoding="utf-8")
     files = {file: out_dir / file for file in
              ("text_encoder.onnx", "tokenizer.json", "gpt_step.onnx", "decoder.onnx", "mean.npy", "std.npy",
-              "MODEL_CARD.md", *encoders)}
+              "MODEL_CARD.md", *encoders, *([FIXED_STEP_GRAPH] if fixed_step else []))}
     return write_bundle(out_dir, files, manifest), checks
 
 

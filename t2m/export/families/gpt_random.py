@@ -37,12 +37,14 @@ def build_random_bundle(
     name: str = "t2m-random-test",
     version: str = "0.0.0",
     encoder: bool = True,
+    fixed_step: bool = False,
 ) -> Path:
     """A tiny random-weight bundle that satisfies the contract (for service tests): ~1 s with the tiny text graph.
 
     text_encoder: "tiny" (random embeddings + a WordPiece tokenizer trained on a few sentences, dim = text_dim)
     or "minilm" (the real all-MiniLM-L6-v2 from the offline package; text_dim becomes 384; ~10 s more).
     residual_layers > 1 gives a residual-VQ decoder with input codes [B, T, R].
+    fixed_step adds gpt_step_fixed.onnx (the step T2M_CUDA_GRAPHS replays).
     Deterministic for a given seed. Returns ``out_dir``.
     """
     torch.manual_seed(seed)
@@ -80,5 +82,6 @@ def build_random_bundle(
         int8=int8,
         notes="Random weights: this bundle exists to test the service and produces meaningless motion.",
         encoder=encoder,
+        fixed_step=fixed_step,
     )
     return Path(out_dir)

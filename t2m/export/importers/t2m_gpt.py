@@ -193,9 +193,11 @@ def import_t2m_gpt(
     check_parity: bool = True,
     allow_pickle: bool = False,
     quantize: str | None = None,
+    fixed_step: bool = False,
 ) -> tuple[dict, ExportChecks]:
     """The whole import: checkpoints -> our modules -> a verified bundle (guidance off, no unconditional branch);
-    the step graph quantised with ``quantize`` (int8, int4 or fp16; kit.import_quantized), or int8 with ``int8``."""
+    the step graph quantised with ``quantize`` (int8, int4 or fp16; kit.import_quantized), or int8 with ``int8``;
+    ``fixed_step``: also gpt_step_fixed.onnx, the float32 step that T2M_CUDA_GRAPHS replays on a GPU."""
     if clip_weights is not None and text_encoder_bundle is not None:
         raise ValueError("pass either --clip or --text-encoder-bundle, not both")
     if quantize is not None and int8 in ("gpt", "all"):
@@ -222,5 +224,5 @@ def import_t2m_gpt(
         out, vq=models.vq, gpt=models.gpt, mean=models.mean, std=models.std, text_source=text_source,
         name=name, version=version, unconditional_branch=False, default_guidance=1.0,
         training_data=dict(training_data or RELEASE_TRAINING_DATA), license=license, int8=int8, notes=notes,
-        check_parity=check_parity,
+        check_parity=check_parity, fixed_step=fixed_step,
     ))

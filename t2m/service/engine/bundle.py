@@ -62,6 +62,21 @@ def session_options(intra_op_threads: int = 0, inter_op_threads: int = 1) -> ort
     return options
 
 
+def open_captured(file: Path, options: ort.SessionOptions, execution: Execution) -> ort.InferenceSession | None:
+    """A captured step graph's session (gpt_step_fixed.onnx) with CUDA-graph capture, or None with a warning where
+    onnxruntime refuses it (the family then runs its plain step graph)."""
+    try:
+        session = graph_session(file, execution.ort_providers, cuda_graph=True, options=options)
+        execution.check_session(session, file.name)
+        return session
+    except ProviderError:
+        raise
+    except Exception as error:
+        log.warning("T2M_CUDA_GRAPHS: %s cannot be captured as a CUDA graph (%s); the plain step graph serves",
+                    file, str(error).splitlines()[0][:200])
+        return None
+
+
 def open_replayed(file: Path, options: ort.SessionOptions, execution: Execution) -> GraphedSession:
     """A replayable graph's session, capturing CUDA graphs where its CUDA provider can (engine/graphed_step.py). A
     graph exported before its shape arithmetic was kept off the CPU (Range or an attention scale fed by Shape:
@@ -170,9 +185,16 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
     check_files(path, manifest.files, check_hashes=check_hashes, required=required_files(raw))
     get_family(manifest.family).check_servable(manifest)
     options = session_options(intra_op_threads, inter_op_threads)
-    replayable = set(get_family(manifest.family).replayable_graphs(raw)) if execution.cuda_graphs else set()
+    family = get_family(manifest.family)
+    replayable = set(family.replayable_graphs(raw)) if execution.cuda_graphs else set()
+    captured = set(family.captured_graphs(raw))
     sessions, replays = {}, {}
     for file in bundle_graphs(raw):
+        if file in captured:   # only for T2M_CUDA_GRAPHS, run by the family's own step class
+            if execution.cuda_graphs and (session := open_captured(path / file, options, execution)) is not None:
+                sessions[file] = session
+                _check_session(session, file, manifest)
+            continue
         if file in replayable:
             replays[file] = open_replayed(path / file, options, execution)
             sessions[file] = replays[file].session

@@ -6,9 +6,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from t2m.decoding.gpt import GptCohort, SamplingJob, sample_codes
+from t2m.decoding.gpt import GptCohort, GptStep, SamplingJob, sample_codes
+from t2m.families.gpt import FIXED_STEP_GRAPH
 from t2m.service.engine.bound_step import BoundGptStep
 from t2m.service.engine.bundle import Bundle
+from t2m.service.engine.graphed_step import FixedCacheGptStep
 from t2m.service.engine.onnx_step import OnnxGptStep
 from t2m.service.engine.requests import check_top_k, segment_steps
 from t2m.service.engine.text import TextEncoder
@@ -30,15 +32,22 @@ def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLim
 
 class GptCodes:
     """Requests -> per-segment code sequences [n] with the bundle's GPT step graph (its cache kept on the device
-    when the bundle's execution binds: engine/bound_step.py)."""
+    when the bundle's execution binds: engine/bound_step.py), or with T2M_CUDA_GRAPHS and a bundle carrying
+    gpt_step_fixed.onnx, the fixed-capacity step replayed as CUDA graphs (engine/graphed_step.py)."""
 
     ends_segments = "its End token"
 
     def __init__(self, bundle: Bundle) -> None:
         gpt = bundle.manifest.settings  # t2m.families.gpt.GptSettings
-        step_class = BoundGptStep if bundle.execution.binds else OnnxGptStep
-        self.step = step_class(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,
-                               gpt.length_conditioning)
+        self.step: GptStep
+        fixed = bundle.sessions.get(FIXED_STEP_GRAPH)   # opened only with T2M_CUDA_GRAPHS (engine/bundle.py)
+        if fixed is not None:
+            self.step = FixedCacheGptStep(fixed, gpt.n_layer, gpt.n_head, gpt.head_dim, gpt.block_size,
+                                          gpt.length_conditioning, cuda_graph=bundle.execution.on_gpu)
+        else:
+            step_class = BoundGptStep if bundle.execution.binds else OnnxGptStep
+            self.step = step_class(bundle.sessions["gpt_step.onnx"], gpt.n_layer, gpt.n_head, gpt.head_dim,
+                                   gpt.length_conditioning)
         self.end_id = gpt.end_id
         self.code_layout = CodeLayout((), (bundle.manifest.codebook_size,))   # one code per step (End excluded)
 
