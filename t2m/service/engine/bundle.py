@@ -63,36 +63,28 @@ def session_options(intra_op_threads: int = 0, inter_op_threads: int = 1) -> ort
 
 
 def open_captured(file: Path, options: ort.SessionOptions, execution: Execution) -> ort.InferenceSession | None:
-    """A captured step graph's session (gpt_step_fixed.onnx) with CUDA-graph capture, or None with a warning where
-    onnxruntime refuses it (the family then runs its plain step graph)."""
+    """The graph's session with CUDA-graph capture (T2M_CUDA_GRAPHS), or None with a warning where onnxruntime
+    refuses it: a graph exported before its shape arithmetic was kept off the CPU (Range or an attention scale fed
+    by Shape: t2m/export/graphs/capture_check.py) makes its CUDA provider copy inside a run."""
     try:
         session = graph_session(file, execution.ort_providers, cuda_graph=True, options=options)
         execution.check_session(session, file.name)
         return session
     except ProviderError:
         raise
-    except Exception as error:
-        log.warning("T2M_CUDA_GRAPHS: %s cannot be captured as a CUDA graph (%s); the plain step graph serves",
-                    file, str(error).splitlines()[0][:200])
+    except Exception as error:   # onnxruntime's Fail: "cannot use the graph capture feature ..."
+        log.warning("T2M_CUDA_GRAPHS: %s cannot be captured as a CUDA graph (%s); going on without its capture "
+                    "(graphs exported or imported by this version capture)", file, str(error).splitlines()[0][:200])
         return None
 
 
 def open_replayed(file: Path, options: ort.SessionOptions, execution: Execution) -> GraphedSession:
-    """A replayable graph's session, capturing CUDA graphs where its CUDA provider can (engine/graphed_step.py). A
-    graph exported before its shape arithmetic was kept off the CPU (Range or an attention scale fed by Shape:
-    t2m/export/graphs/capture_check.py) is refused capture by onnxruntime; it is served without, with a warning
-    saying how to get one that captures."""
-    try:
-        session = graph_session(file, execution.ort_providers, cuda_graph=True, options=options)
-        execution.check_session(session, file.name)
-        return GraphedSession(session, cuda_graph=execution.on_gpu, max_shapes=execution.graph_shapes)
-    except ProviderError:
-        raise
-    except Exception as error:   # onnxruntime's Fail: "cannot use the graph capture feature ..."
-        log.warning("T2M_CUDA_GRAPHS: %s cannot be captured as a CUDA graph (%s); serving it without. Graphs "
-                    "exported or imported by this version capture (t2m/export/graphs/capture_check.py)",
-                    file, str(error).splitlines()[0][:200])
+    """A replayable graph (engine/graphed_step.py's GraphedSession), captured where onnxruntime allows, else
+    plain calls through the same wrapper."""
+    session = open_captured(file, options, execution)
+    if session is None:
         return GraphedSession(open_session(file, options, execution), cuda_graph=False, max_shapes=0)
+    return GraphedSession(session, cuda_graph=execution.on_gpu, max_shapes=execution.graph_shapes)
 
 
 def open_session(file: Path | bytes, options: ort.SessionOptions,
