@@ -5,6 +5,7 @@ On an H100 the same graphs were captured and gave the plain calls' codes (docs/m
 gpu_suite_h100_2026-11-27.log)."""
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -84,6 +85,10 @@ def test_the_gpt_familys_fixed_step_serves_with_cuda_graphs_only(fixed_step_bund
     fixed = OnnxEngine.load(fixed_step_bundle, intra_op_threads=1, execution=Execution(cuda_graphs=True))
     assert "gpt_step_fixed.onnx" not in plain.bundle.sessions and type(plain.codes.step) is OnnxGptStep
     assert isinstance(fixed.codes.step, FixedCacheGptStep)
+    # /health names it as captured where the providers are a GPU's (here: nothing is captured on the CPU)
+    assert fixed.limits.details["execution"]["cuda_graphs"] == []
+    on_gpu = dataclasses.replace(fixed.bundle, execution=Execution(("cuda",), cuda_graphs=True))
+    assert on_gpu.cuda_graphs == ["gpt_step_fixed.onnx"]
     for request in GPT_REQUESTS * 2:          # the second time through, a finished cohort's buffers are reused
         want, got = plain.generate(request), fixed.generate(request)
         assert [(s.start_frame, s.end_frame) for s in got.segments] == \

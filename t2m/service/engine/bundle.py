@@ -134,6 +134,15 @@ class Bundle:
         return self.sessions.get(ENCODER_GRAPH)
 
     @property
+    def cuda_graphs(self) -> list[str]:
+        """The graphs replayed as CUDA graphs (what /health reports): none off a GPU."""
+        if not self.execution.on_gpu:
+            return []
+        captured = get_family(self.manifest.family).captured_graphs(self.manifest.raw)
+        return sorted([file for file, graph in self.replays.items() if graph.cuda_graph] +
+                      [file for file in captured if file in self.sessions])
+
+    @property
     def tokenizer_file(self) -> Path:
         return self.path / "tokenizer.json"
 

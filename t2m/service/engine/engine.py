@@ -97,8 +97,7 @@ class OnnxEngine:
                         if key in raw}, "unknown_text": self._unknown_text_details(),
                      "streaming": self._streaming_details(),
                      "execution": {"providers": list(bundle.execution.providers),
-                                   "cuda_graphs": sorted(file for file, graph in bundle.replays.items()
-                                                         if graph.cuda_graph)},
+                                   "cuda_graphs": bundle.cuda_graphs},
                      "family": manifest.family,
                      **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
             ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits,

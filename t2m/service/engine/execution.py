@@ -61,8 +61,8 @@ class Execution:
 
     providers: tuple[str, ...] = ("cpu",)
     io_binding: IoBinding = "auto"
-    # the family's replayable graphs (masked, residual) captured as CUDA graphs, up to `graph_shapes` input shapes
-    # per graph (engine/graphed_step.py); on the CPU provider the same buffers without capture (the tests)
+    # step graphs captured as CUDA graphs (the family's replayable graphs, up to `graph_shapes` input shapes each,
+    # and its captured step graphs: engine/graphed_step.py); on the CPU provider the same buffers, no capture
     cuda_graphs: bool = False
     graph_shapes: int = 16
 
