@@ -19,6 +19,7 @@ from t2m.bundle.family import (
 from t2m.bundle.files import check_files, files_table, sha256_of
 from t2m.bundle.graphs import (
     ENCODER_GRAPH,
+    FIXED_STEP_GRAPH,
     DeclaredTensor,
     GraphSpec,
     TensorSpec,
@@ -48,6 +49,7 @@ __all__ = [
     "CAPTION_INDEX_FILE",
     "COMMON_FILES",
     "ENCODER_GRAPH",
+    "FIXED_STEP_GRAPH",
     "FORMAT_VERSION",
     "LENGTH_GRAPH",
     "MANIFEST_NAME",

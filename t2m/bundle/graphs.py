@@ -34,6 +34,8 @@ INT64 = "int64"
 FLOAT32 = "float32"
 # the optional graph that turns a motion's normalised features into the codes its decoder reads (uploaded motions)
 ENCODER_GRAPH = "encoder.onnx"
+# optional in a gpt-family bundle: the step over a fixed-capacity cache that T2M_CUDA_GRAPHS replays
+FIXED_STEP_GRAPH = "gpt_step_fixed.onnx"
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 from t2m.bundle.errors import BundleError
 from t2m.bundle.family import SEGMENT_EDITS, Capabilities, FieldRule, ModelFamily
-from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, features_output, kv_shape
+from t2m.bundle.graphs import FIXED_STEP_GRAPH, FLOAT32, INT64, GraphSpec, TensorSpec, features_output, kv_shape
 from t2m.bundle.manifest import (
     BOOL,
     COMMON_FILES,
@@ -28,7 +28,6 @@ from t2m.bundle.manifest import (
 __all__ = ["FAMILY", "GPT_FIELDS", "REQUIRED_FILES", "GptFamily", "GptSettings"]
 
 REQUIRED_FILES = (*COMMON_FILES[:2], "gpt_step.onnx", *COMMON_FILES[2:])
-FIXED_STEP_GRAPH = "gpt_step_fixed.onnx"   # optional: the step for CUDA graphs (captured_graphs)
 GPT_FIELDS: dict[str, FieldRule] = {
     "end_id": (is_int, "an integer"),
     "gpt.n_layer": POSITIVE,

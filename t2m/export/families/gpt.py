@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from t2m.bundle.graphs import FIXED_STEP_GRAPH
 from t2m.export.graphs.decoder import export_decoder
 from t2m.export.graphs.encoder import ENCODER_FILE, encoder_card_lines, encoder_parity, write_encoder
 from t2m.export.graphs.gpt import export_gpt_fixed_cache_step, export_gpt_step
@@ -26,7 +27,6 @@ from t2m.export.kit.checks import GROSS_PARITY_ERROR, INT8_LABEL, ROW_INT8_LABEL
 from t2m.export.kit.runs import normalisation, run_record, run_training_data
 from t2m.export.kit.text_sources import TextSource, clip_text_source, minilm_text_source
 from t2m.export.writing.bundle import check_out_dir, motion_fields, prepare_out_dir, render_model_card, write_bundle
-from t2m.families.gpt import FIXED_STEP_GRAPH
 from t2m.model.networks.gpt import MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE
 

@@ -6,8 +6,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from t2m.bundle.graphs import FIXED_STEP_GRAPH
 from t2m.decoding.gpt import GptCohort, GptStep, SamplingJob, sample_codes
-from t2m.families.gpt import FIXED_STEP_GRAPH
 from t2m.service.engine.bound_step import BoundGptStep
 from t2m.service.engine.bundle import Bundle
 from t2m.service.engine.graphed_step import FixedCacheGptStep
