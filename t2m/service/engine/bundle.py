@@ -184,9 +184,9 @@ def load_bundle(path: str | Path, *, check_hashes: bool = True, intra_op_threads
     _check_served_family(raw)
     manifest = parse_manifest(raw)
     check_files(path, manifest.files, check_hashes=check_hashes, required=required_files(raw))
-    get_family(manifest.family).check_servable(manifest)
-    options = session_options(intra_op_threads, inter_op_threads)
     family = get_family(manifest.family)
+    family.check_servable(manifest)
+    options = session_options(intra_op_threads, inter_op_threads)
     replayable = set(family.replayable_graphs(raw)) if execution.cuda_graphs else set()
     captured = set(family.captured_graphs(raw))
     sessions, replays = {}, {}
