@@ -81,9 +81,9 @@ class ResidualTransformer(TokenMapEncoder):
         codes = codes[..., :known]
         codes = torch.where(codes < 0, torch.full_like(codes, self.pad_id), codes.clamp(max=self.pad_id))
         tables = self.input_tables()[:known]  # [k, K+1, d]
-        offsets = index_range(known, codes) * tables.shape[1]
-        embedded = F.embedding(codes + offsets, tables.reshape(-1, tables.shape[-1]))  # [B, T, C, k, d]
-        used = (index_range(known, codes)[None, :] < layer[:, None]).to(embedded.dtype)  # [B, k]
+        depths = index_range(known, codes)  # [k]
+        embedded = F.embedding(codes + depths * tables.shape[1], tables.reshape(-1, tables.shape[-1]))  # [B,T,C,k,d]
+        used = (depths[None, :] < layer[:, None]).to(embedded.dtype)  # [B, k]
         return (embedded * used[:, None, None, :, None]).sum(dim=3)
 
     def forward(
