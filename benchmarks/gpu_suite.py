@@ -14,7 +14,7 @@ transformer sizes are not in its manifest: no PyTorch column).
 
 Needs only numpy, torch, onnx, onnxruntime(-gpu) and this repository (no tokenizers, no service stack, no network):
     PYTHONPATH=. python benchmarks/gpu_suite.py --out OUT [--device cuda|cpu] [--batches 1,16,64] [--repeats 3]
-        [--models gpt,default,masked,t2m-gpt-release,momask-release] [--tiny]
+        [--models gpt,default,masked,t2m-gpt-release,momask-release] [--tiny] [--processes 2,4]
 Prints one markdown table, writes OUT/gpu_suite.json (the rows and the machine), and says what is missing (no CUDA
 in torch, no CUDAExecutionProvider in onnxruntime) instead of failing. --tiny: the release cases at toy sizes (the
 CPU test, tests/test_gpu_suite.py).
@@ -22,6 +22,7 @@ CPU test, tests/test_gpu_suite.py).
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import platform
 import statistics
@@ -419,6 +420,38 @@ def release_momask_case(workdir: Path, tiny: bool) -> Case:
                 onnx_masked(*loop), make_torch, paths["decoder"], kv_cache=False, graphed=graphed_masked(*loop))
 
 
+def case_builders(workdir: Path, tiny: bool) -> dict[str, Callable[[], Case]]:
+    """Each model's Case builder (the release cases write their random checkpoints under `workdir`)."""
+    return {"gpt": embedded_gpt_case, "default": embedded_hifigpt_case, "masked": embedded_masked_case,
+            "t2m-gpt-release": lambda: release_gpt_case(workdir, tiny),
+            "momask-release": lambda: release_momask_case(workdir, tiny)}
+
+
+def processes_rows(case: Case, name: str, args: argparse.Namespace, workdir: Path, failures: list[str]) -> list[Row]:
+    """--processes: N processes, each generating and decoding batches of B on the device at once
+    (benchmarks/gpu_processes.py); the row's batch is N x B and its ms the wall time per round, decode included."""
+    from benchmarks.gpu_processes import EMBEDDED, processes_wall_s
+
+    if name not in EMBEDDED:
+        return []
+    kind = GRAPH_VARIANT.kind if GRAPH_VARIANT is not None else "shipped"
+    graphs = "" if kind == "shipped" else f" {kind}"
+    rows = []
+    for processes in args.processes:
+        for batch in args.batches:
+            def one_row(processes: int = processes, batch: int = batch) -> Row:
+                wall = processes_wall_s(name, kind, workdir, args.device, processes, batch, args.repeats)
+                ms = 1000 * wall / args.repeats
+                return Row(case.label, processes * batch, f"onnxruntime {args.device}{graphs}, {processes} processes "
+                           f"x batch {batch} (decode included)", case.steps, ms / case.steps, ms, 0.0)
+
+            row = attempt(failures, f"{case.label} {processes} processes x batch {batch}", one_row)
+            if row is not None:
+                rows.append(row)
+                print(f"  {row.method}: {row.motions_per_s:.0f} motions/s", file=sys.stderr, flush=True)
+    return rows
+
+
 def what_is_missing(device: str) -> tuple[bool, bool, list[str]]:
     """(onnxruntime can run on the device, torch can, the missing pieces in words)."""
     missing = []
@@ -571,12 +604,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="shipped: the graphs as exported (the default model's steps are int8); float32: int8 "
                              "graphs dequantised; fp16: float16 graphs (int8 dequantised first) and PyTorch under "
                              "float16 autocast; fp16-fused: onnxruntime's transformer fusions first")
+    parser.add_argument("--processes", default="",
+                        help="comma-separated process counts: also run the embedded models in N processes at once "
+                             "on the device, each at every batch (benchmarks/gpu_processes.py)")
     args = parser.parse_args(argv)
     args.batches = [int(b) for b in args.batches.split(",") if b.strip()]
+    args.processes = [int(n) for n in args.processes.split(",") if n.strip()]
     args.models = [m.strip() for m in args.models.split(",") if m.strip()]
     unknown = [m for m in args.models if m not in MODELS]
-    if unknown or args.repeats < 1 or not args.batches or min(args.batches) < 1:
-        parser.error(f"--models from {', '.join(MODELS)} (unknown: {unknown}); --repeats and --batches >= 1")
+    if unknown or args.repeats < 1 or not args.batches or min(args.batches + args.processes) < 1:
+        parser.error(f"--models from {', '.join(MODELS)} (unknown: {unknown}); --repeats, --batches and "
+                     "--processes >= 1")
     return args
 
 
@@ -599,17 +637,18 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="gpu-suite-") as temporary:
         workdir = Path(temporary)
         GRAPH_VARIANT = Graphs(args.graphs, workdir)
-        builders: dict[str, Callable[[], Case]] = {
-            "gpt": embedded_gpt_case, "default": embedded_hifigpt_case, "masked": embedded_masked_case,
-            "t2m-gpt-release": lambda: release_gpt_case(workdir, args.tiny),
-            "momask-release": lambda: release_momask_case(workdir, args.tiny)}
+        builders = case_builders(workdir, args.tiny)
         for name in args.models:
             built = time.perf_counter()
             case = attempt(failures, name, builders[name])
+            gc.collect()
+            gc.freeze()      # as the service does once its models are loaded (T2M_GC_FREEZE)
             if case is not None:
                 notes.append(f"- {case.label}: {case.note} (built in {time.perf_counter() - built:.0f} s)")
                 case_rows = bench_case(case, args.device, args.batches, args.repeats, ort_ok, torch_ok, failures,
                                        notes)
+                if args.processes and ort_ok:
+                    case_rows += processes_rows(case, name, args, workdir, failures)
                 rows += case_rows
                 print("\n".join(table(case_rows)[2:]), file=sys.stderr, flush=True)   # a cut-off run keeps them
                 write_record(args.out, machine(args.device), missing, failures, notes, rows)
@@ -620,7 +659,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\n" + "\n".join(notes + failures + [
         f"- batch B = B motions of 10 s with guidance (2B rows); median of {args.repeats} run(s) after a warm-up; "
         "ms per 10 s motion = the batch's generate + decode; motions / s = B / that; vs PyTorch = the PyTorch "
-        "row's ms per 10 s motion / this row's", f"- whole run {time.perf_counter() - started:.0f} s"]))
+        "row's ms per 10 s motion / this row's; the garbage collector frozen after each model's build, as the service "
+        "freezes it after loading", f"- whole run {time.perf_counter() - started:.0f} s"]))
     write_record(args.out, info, missing, failures, notes, rows)
     return 1 if failures else 0
 

@@ -7,20 +7,24 @@ benchmarks/gpu_suite.py adds the default loop over instant steps as a "host loop
 on the device's own CPU beside its GPU rows.
 
     PYTHONPATH=. python benchmarks/host_loop.py [--batches 1,64,256,1024] [--repeats 3] [--draw-groups 128,0]
-        [--loops default,momask,t2m-gpt]
+        [--loops default,momask,t2m-gpt] [--gc frozen,as-is]
 
 --draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows),
-alternating within each repeat. To compare checkouts, copy this file into the other checkout's benchmarks/ and run
-both copies by turns: each times the loop of the checkout it lies in.
+alternating within each repeat. --gc: the garbage collector as the service leaves it after loading (frozen: every
+object alive then moved out of its generations, T2M_GC_FREEZE) and/or as-is, also alternating. To compare
+checkouts, copy this file into the other checkout's benchmarks/ and run both copies by turns: each times the loop
+of the checkout it lies in.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import gc
 import json
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +133,19 @@ def t2m_gpt_loop(max_batch: int) -> tuple[Callable[[int], np.ndarray], int]:
     return gpt_generate(step, 512, tokens, tokens, codes), tokens
 
 
+@contextlib.contextmanager
+def collector(mode: str) -> Iterator[None]:
+    """The garbage collector for one timed run: 'frozen' as the service leaves it after loading
+    (t2m.service.app.freeze_loaded_objects), 'as-is' untouched; unfrozen afterwards either way."""
+    if mode == "frozen":
+        gc.collect()
+        gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
 LOOPS = {"default": ("default (T2M-HiFiGPT)", default_loop), "momask": ("MoMask release", momask_loop),
          "t2m-gpt": ("T2M-GPT release", t2m_gpt_loop)}
 
@@ -139,30 +156,37 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--draw-groups", default=None, help="DRAW_GROUP sizes to compare (0 = all rows at once)")
     parser.add_argument("--loops", default="default", help=f"comma-separated, of {', '.join(LOOPS)}")
+    parser.add_argument("--gc", default="frozen", help="comma-separated, of frozen (as the service runs) and as-is")
     args = parser.parse_args(argv)
+    modes = args.gc.split(",")
+    if not modes or set(modes) - {"frozen", "as-is"}:
+        parser.error(f"--gc takes frozen and/or as-is, got {args.gc!r}")
     from t2m.decoding import lockstep
 
     batches = [int(b) for b in args.batches.split(",")]
     default = getattr(lockstep, "DRAW_GROUP", 0)      # 0 in a checkout from before DRAW_GROUP
     groups = [int(g) for g in args.draw_groups.split(",")] if args.draw_groups else [default]
-    print("| loop | draw group | batch | ms per batch of 10 s motions | host cap, motions / s |\n"
-          "| --- | ---: | ---: | ---: | ---: |")
+    print("| loop | draw group | batch | ms per batch of 10 s motions | host cap, motions / s | gc |\n"
+          "| --- | ---: | ---: | ---: | ---: | --- |")
     for name in args.loops.split(","):
         label, make = LOOPS[name]
         generate, steps = make(max(batches))
         for batch in batches:
             generate(batch)
-            times: dict[int, list[float]] = {group: [] for group in groups}
+            times: dict[tuple[int, str], list[float]] = {(group, mode): [] for group in groups for mode in modes}
             for _ in range(args.repeats):
-                for group in groups:
+                for group, mode in times:
                     lockstep.DRAW_GROUP = group or 10**9
-                    started = time.perf_counter()
-                    generate(batch)
-                    times[group].append(time.perf_counter() - started)
-            for group in groups:
-                ms = 1000 * statistics.median(times[group])
-                print(f"| {label}, {steps} steps | {group or 'all'} | {batch} | {ms:.1f} | {1000 * batch / ms:.0f} |",
-                      flush=True)
+                    with collector(mode):
+                        if len(modes) > 1:
+                            generate(batch)     # untimed: the collection before a frozen run leaves caches cold
+                        started = time.perf_counter()
+                        generate(batch)
+                        times[group, mode].append(time.perf_counter() - started)
+            for (group, mode), runs in times.items():
+                ms = 1000 * statistics.median(runs)
+                print(f"| {label}, {steps} steps | {group or 'all'} | {batch} | {ms:.1f} | {1000 * batch / ms:.0f} | "
+                      f"{mode} |", flush=True)
     print(f"- median of {args.repeats}; instant network calls; guidance (a cond and a null row per motion)")
     return 0
 

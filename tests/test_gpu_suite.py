@@ -41,6 +41,40 @@ def test_gpu_suite_runs_on_cpu_with_toy_sizes(tmp_path):
     assert table[0].startswith("| model | batch | method") and len(table) == 1 + 1 + len(record["rows"])
 
 
+@pytest.mark.timeout(300)
+def test_gpu_suite_runs_the_default_model_in_several_processes_at_once(tmp_path):
+    """--processes 2: two processes, each with its own sessions, generate and decode batches together; the row
+    counts both processes' motions (batch 2 x 1)."""
+    pytest.importorskip("torch")
+    pytest.importorskip("onnx")
+    result = subprocess.run(
+        [sys.executable, str(REPO / "benchmarks" / "gpu_suite.py"), "--out", str(tmp_path), "--device", "cpu",
+         "--batches", "1", "--repeats", "1", "--models", "default", "--processes", "2"],
+        cwd=REPO, capture_output=True, text=True, timeout=280, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
+                                                                   "OMP_NUM_THREADS": "1"})
+    assert result.returncode == 0, result.stderr[-2000:]
+    record = json.loads((tmp_path / "gpu_suite.json").read_text())
+    (row,) = [row for row in record["rows"] if "processes" in row["method"]]
+    assert row["method"] == "onnxruntime cpu, 2 processes x batch 1 (decode included)" and row["batch"] == 2
+    assert row["ms_generate"] > 0 and not record["failures"]
+
+
+def test_a_process_that_cannot_start_is_named_and_nothing_waits_for_it(tmp_path):
+    """A process that fails before the common start (here: no CUDA provider) aborts the barrier: the others do not
+    hang, and the failure comes back in one line; a release case is refused (its build writes files)."""
+    pytest.importorskip("torch")
+    import onnxruntime
+
+    from benchmarks.gpu_processes import processes_wall_s
+
+    if "CUDAExecutionProvider" in onnxruntime.get_available_providers():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(RuntimeError, match=r"(?i)cuda"):
+        processes_wall_s("default", "shipped", tmp_path, "cuda", 2, 1, 1, timeout_s=120)
+    with pytest.raises(ValueError, match="embedded cases"):
+        processes_wall_s("momask-release", "shipped", tmp_path, "cpu", 2, 1, 1)
+
+
 def test_gpu_suite_says_what_is_missing_for_cuda(tmp_path):
     """Without onnxruntime-gpu and a CUDA device (this machine) a CUDA run names both and stops cleanly."""
     pytest.importorskip("torch")
@@ -146,5 +180,10 @@ def test_gpu_service_check_serves_an_import_with_and_without_cuda_graphs_on_cpu(
          "--repeats", "1", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600, cwd=REPO)
     assert result.returncode == 0, result.stderr[-2000:]
     table = (tmp_path / "gpu_service_check.md").read_text()
-    assert "| cpu | off |" in table and "| cpu | on |" in table and table.count("| [] |") == 2
-    assert "two motions: 0.00e+00 m" in table
+    rows = [[cell.strip() for cell in line.split("|")[1:5]] for line in table.splitlines()
+            if line.startswith("| ") and not line.startswith(("| model", "| ---"))]
+    assert rows == [[model, scheme, "cpu", graphs] for model in ("MoMask", "T2M-GPT") for scheme in ("float32", "fp16")
+                    for graphs in ("off", "on")]
+    assert table.count("| [] |") == 8
+    # the fixed-cache T2M-GPT step (float32 and fp16) draws what the plain step draws
+    assert table.count("two motions: 0.00e+00 m") == 4

@@ -22,6 +22,7 @@ from t2m.bundle.manifest import (
     POSITIVE,
     QUANTIZATION,
     check_block_size,
+    check_fields,
     is_int,
 )
 
@@ -84,6 +85,8 @@ class GptFamily(ModelFamily):
             raise BundleError(f"{MANIFEST_NAME}: field 'end_id' is {manifest['end_id']}, expected codebook_size "
                               f"{manifest['codebook_size']} (End is the last logit)")
         check_block_size(manifest, "gpt")
+        # gpt_step_fixed.onnx, where a bundle has one, may be converted too (`t2m quantize --scheme fp16`)
+        check_fields(manifest, {"quantization.gpt_step_fixed": QUANTIZATION}, required=False)
 
     def required_files(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         return REQUIRED_FILES

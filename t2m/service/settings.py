@@ -56,6 +56,12 @@ class Settings(BaseSettings):
     # 204 -> 132 ms per request with one, docs/speed-history.md)
     blas_threads: int = Field(1, ge=0, description="numpy's BLAS threads in the service process (0 = BLAS's own "
                                                    "choice: one per core).")
+    # on by default: the decoding loops allocate many small objects per step, and with the loaded libraries'
+    # objects in the collector's view its full collections took ~30% of the default model's host loop at batch
+    # 1,024 (benchmarks/host_loop.py --gc as-is,frozen; docs/gpu.md)
+    gc_freeze: bool = Field(True, description="After the models load, move every object alive then out of the "
+                                              "garbage collector's generations (gc.freeze), so its collections "
+                                              "walk only what requests allocate.")
     execution_providers: Annotated[list[Provider], NoDecode] = Field(
         default_factory=_cpu_only, min_length=1,
         description="onnxruntime execution providers of the model sessions, in order, comma-separated in the env: "

@@ -71,3 +71,22 @@ def test_the_service_limits_numpys_blas_threads_at_start_up(make_client, random_
     assert {path: blas_threads()[path] for path in before} == before
     make_client(Settings(bundle_path=random_bundle, blas_threads=1))
     assert set(blas_threads().values()) == {1}
+
+
+def test_the_service_freezes_what_it_loaded_out_of_the_garbage_collectors_view(make_client, random_bundle):
+    """T2M_GC_FREEZE (on by default): once the models are loaded, everything alive then is moved out of the
+    collector's generations (gc.freeze), so collections during serving walk only what requests allocate; off, the
+    collector is left as it is."""
+    import gc
+
+    gc.unfreeze()
+    try:
+        make_client(Settings(bundle_path=random_bundle, gc_freeze=False))
+        assert gc.get_freeze_count() == 0
+        client = make_client(Settings(bundle_path=random_bundle))
+        frozen = gc.get_freeze_count()
+        assert frozen > 10_000     # the app, onnxruntime's and the tokenizers' Python objects, the loaded modules
+        assert client.post("/generate", json={"segments": [{"text": "a person walks", "duration": 1.0}]}
+                           ).status_code == 200
+    finally:
+        gc.unfreeze()

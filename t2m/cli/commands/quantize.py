@@ -53,10 +53,13 @@ def run(args: argparse.Namespace) -> int:
 
 def summary(manifest: dict, output: Path, report: dict | None) -> str:
     """One line: which graphs became what, their sizes, the measured agreement, where."""
-    from t2m.export.writing.int8 import quantized_graphs
+    from t2m.export.writing.int8 import captured_graphs_to_convert, quantized_graphs
 
-    graphs = ", ".join(f"{name} {manifest['quantization'][Path(name).stem]} "
-                       f"({(output / name).stat().st_size / 1e6:.1f} MB)" for name in quantized_graphs(manifest))
+    done = manifest["quantization"]
+    converted = [*quantized_graphs(manifest), *(name for name in captured_graphs_to_convert(manifest, "fp16")
+                                                if done.get(Path(name).stem))]
+    graphs = ", ".join(f"{name} {done[Path(name).stem]} ({(output / name).stat().st_size / 1e6:.1f} MB)"
+                       for name in converted)
     parity = "" if report is None else (f"; {100 * report['agreement']:.1f}% of tokens as the original's over "
                                         f"{report['runs']} seeded requests, max |logit diff| "
                                         f"{report['max_abs_logit_diff']:.3g}")

@@ -11,6 +11,11 @@ Two figures, because they answer two questions:
   float32 trajectory, teacher-forced), outputs whose name says logit compared; with the largest float32 logit
   beside it as the scale to read it against.
 
+A family's captured graphs (the GPT's gpt_step_fixed.onnx, which T2M_CUDA_GRAPHS serves) are measured the same way
+with `captured=True`: both bundles served with CUDA graphs asked for, which on the CPU provider steps those graphs
+without capturing anything. They keep their cache in their own buffers, so the quantised twin is fed the float32
+trajectory's inputs (cond, token, position, length) and keeps a cache of its own, as it would when served.
+
 Only onnxruntime and numpy: `t2m quantize` measures a bundle without PyTorch.
 """
 from __future__ import annotations
@@ -22,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from t2m.decoding.lockstep import keep_rows
 from t2m.export.writing.quantize import REPORT_TEXTS as TEXTS  # the motion captions int8 reports use
 
 __all__ = ["PARITY_RUNS", "BundleParity", "GraphParity", "compare_bundles"]
@@ -38,6 +44,15 @@ class GraphParity:
     calls: int = 0
     max_abs_logit_diff: float = 0.0
     max_abs_logit: float = 0.0       # the float32 logits' scale
+
+    def compare(self, name: str, fp32: np.ndarray, quantised: np.ndarray) -> None:
+        """One call's output `name` of both graphs: kept when it is a logit output; non-finite twins refused."""
+        if "logit" not in name:
+            return
+        if not np.isfinite(quantised).all():
+            raise ValueError(f"{self.file}: the quantised graph gave non-finite {name}")
+        self.max_abs_logit_diff = max(self.max_abs_logit_diff, float(np.abs(fp32 - quantised).max()))
+        self.max_abs_logit = max(self.max_abs_logit, float(np.abs(fp32).max()))
 
 
 @dataclass
@@ -76,12 +91,7 @@ class _ComparingSession:
         names = list(output_names) if output_names else [o.name for o in self._fp32.get_outputs()]
         twins = self._quantised.run(names, feeds, *args)
         for name, a, b in zip(names, outputs, twins):
-            if "logit" not in name:
-                continue
-            if not np.isfinite(b).all():
-                raise ValueError(f"{self._record.file}: the quantised graph gave non-finite {name}")
-            self._record.max_abs_logit_diff = max(self._record.max_abs_logit_diff, float(np.abs(a - b).max()))
-            self._record.max_abs_logit = max(self._record.max_abs_logit, float(np.abs(a).max()))
+            self._record.compare(name, a, b)
         self._record.calls += 1
         return outputs
 
@@ -89,22 +99,60 @@ class _ComparingSession:
         return getattr(self._fp32, name)
 
 
+class _ComparingStep:
+    """A GPT-loop step (t2m.decoding.gpt.GptStep) over a captured graph that also steps its quantised twin on the
+    same inputs, the twin with a cache of its own; the served loop sees only the float32 logits and cache."""
+
+    def __init__(self, fp32: Any, quantised: Any, record: GraphParity) -> None:
+        self._fp32, self._quantised, self._record = fp32, quantised, record
+
+    def empty_cache(self, batch: int) -> tuple[Any, Any]:
+        return self._fp32.empty_cache(batch), self._quantised.empty_cache(batch)
+
+    def keep_rows(self, past: tuple[Any, Any], keep: np.ndarray) -> tuple[Any, Any]:
+        return keep_rows(self._fp32, past[0], keep), keep_rows(self._quantised, past[1], keep)
+
+    def __call__(self, cond: np.ndarray, token: np.ndarray, position: int, length: np.ndarray,
+                 past: tuple[Any, Any]) -> tuple[np.ndarray, tuple[Any, Any]]:
+        logits, fp32_past = self._fp32(cond, token, position, length, past[0])
+        twin, quantised_past = self._quantised(cond, token, position, length, past[1])
+        self._record.compare("logits", logits, twin)
+        self._record.calls += 1
+        return logits, (fp32_past, quantised_past)
+
+
 def compare_bundles(fp32_dir: str | Path, quantised_dir: str | Path, graphs: Sequence[str],
-                    runs: int = PARITY_RUNS, seconds: float = PARITY_SECONDS, threads: int = 0) -> BundleParity:
+                    runs: int = PARITY_RUNS, seconds: float = PARITY_SECONDS, threads: int = 0,
+                    captured: bool = False) -> BundleParity:
     """Serve the same `runs` seeded one-sentence requests on both bundles; compare their tokens and, for each file
-    in `graphs`, the quantised graph's logits with the float32 one's on the float32 trajectory."""
+    in `graphs`, the quantised graph's logits with the float32 one's on the float32 trajectory. `captured`: `graphs`
+    is the GPT step the service replays as CUDA graphs (gpt_step_fixed.onnx), served here on the CPU provider."""
     from t2m.service.engine.bundle import load_bundle
     from t2m.service.engine.engine import OnnxEngine
+    from t2m.service.engine.execution import Execution
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
 
-    fp32 = load_bundle(Path(fp32_dir), intra_op_threads=threads)
-    quantised = load_bundle(Path(quantised_dir), intra_op_threads=threads)
+    execution = Execution(cuda_graphs=True) if captured else None
+    fp32 = load_bundle(Path(fp32_dir), intra_op_threads=threads, execution=execution)
+    quantised = load_bundle(Path(quantised_dir), intra_op_threads=threads, execution=execution)
     seconds = min(seconds, fp32.manifest.max_tokens * fp32.manifest.frames_per_token / fp32.manifest.fps)
     report = BundleParity(runs=runs, seconds=seconds)
     for name in graphs:
         report.graphs[name] = GraphParity(name)
-        fp32.sessions[name] = _ComparingSession(fp32.sessions[name], quantised.sessions[name], report.graphs[name])
+        if not captured:
+            fp32.sessions[name] = _ComparingSession(fp32.sessions[name], quantised.sessions[name],
+                                                    report.graphs[name])
     engines = [OnnxEngine(bundle) for bundle in (fp32, quantised)]
+    if captured:
+        from t2m.service.engine.gpt_codes import GptCodes
+
+        (name,) = graphs   # the one captured graph a family has: the GPT's, served through its step
+        fp32_codes, quantised_codes = (engine.codes for engine in engines)
+        if name not in fp32.sessions or name not in quantised.sessions:
+            raise ValueError(f"{name}: not opened for CUDA-graph serving in both bundles")
+        if not isinstance(fp32_codes, GptCodes) or not isinstance(quantised_codes, GptCodes):
+            raise ValueError(f"{name}: only the GPT family serves a captured step graph")
+        fp32_codes.step = _ComparingStep(fp32_codes.step, quantised_codes.step, report.graphs[name])
     guidance = engines[0].limits.default_guidance
     requests = [GenerationRequest(segments=[SegmentRequest(TEXTS[run % len(TEXTS)], seconds)], seed=run,
                                   guidance=guidance) for run in range(runs)]

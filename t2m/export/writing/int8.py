@@ -24,8 +24,8 @@ from t2m.bundle import MANIFEST_NAME
 from t2m.export.kit.checks import INT8_LABEL, INT8_LABELS, ROW_INT8_LABEL
 from t2m.export.writing.bundle import check_out_dir, prepare_out_dir, write_bundle
 
-__all__ = ["DEQUANTIZED_LABEL", "FP16_LABEL", "INT4_LABEL", "SCHEMES", "quantize_bundle", "quantize_bundle_gpt",
-           "quantized_graphs"]
+__all__ = ["DEQUANTIZED_LABEL", "FP16_LABEL", "INT4_LABEL", "SCHEMES", "captured_graphs_to_convert", "quantize_bundle",
+           "quantize_bundle_gpt", "quantized_graphs"]
 
 INT4_LABEL = "int4-matmulnbits"
 FP16_LABEL = "fp16"
@@ -80,6 +80,18 @@ def quantized_graphs(manifest: dict[str, Any]) -> tuple[str, ...]:
     return get_family(family_of(manifest)).quantizable_graphs(manifest)
 
 
+def captured_graphs_to_convert(manifest: dict[str, Any], scheme: str) -> tuple[str, ...]:
+    """The family's captured graphs (the GPT's gpt_step_fixed.onnx, replayed as CUDA graphs) this bundle holds and
+    `scheme` converts: fp16 only, as they exist for GPUs (int8 and int4 would make them slow there; they are float32
+    already)."""
+    from t2m.bundle import family_of, get_family
+
+    if scheme != "fp16":
+        return ()
+    captured = get_family(family_of(manifest)).captured_graphs(manifest)
+    return tuple(name for name in captured if name in manifest.get("files", {}))
+
+
 def _read_manifest(src: Path) -> dict[str, Any]:
     if not (src / MANIFEST_NAME).is_file():
         raise ValueError(f"{src}: no {MANIFEST_NAME} (not a bundle directory)")
@@ -115,6 +127,8 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     elif any(done.values()) and not from_int8:
         name, already = next((name, value) for name, value in done.items() if value)
         raise ValueError(f"{src}: {name} is already {already}")
+    captured = captured_graphs_to_convert(manifest, scheme)
+    converters = {**dict.fromkeys(graphs, quantize), **{name: _quantizer(scheme)[0] for name in captured}}
     if parity and out.resolve() == src.resolve():
         raise ValueError("the output must differ from the bundle: the float32 original is what the copy is measured "
                          "against")
@@ -127,28 +141,34 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
         staged = Path(tmp)
         for name in names:
             (staged / name).parent.mkdir(parents=True, exist_ok=True)
-            if name in graphs:
-                quantize(src / name, staged / name)
+            if name in converters:
+                converters[name](src / name, staged / name)
             else:
                 shutil.copyfile(src / name, staged / name)
         manifest["quantization"] = {**(manifest.get("quantization") or {}),
-                                    **{Path(name).stem: label for name in graphs}}
+                                    **{Path(name).stem: label for name in converters}}
         if version is not None:
             manifest["version"] = version
         written = write_bundle(out, {name: staged / name for name in names}, manifest)
     if not parity:
         return written, None
-    report = compare_bundles(src, out, graphs, runs=PARITY_RUNS if runs is None else runs)
-    sizes = {name: ((src / name).stat().st_size, (out / name).stat().st_size) for name in graphs}
+    runs = PARITY_RUNS if runs is None else runs
+    report = compare_bundles(src, out, graphs, runs=runs)
+    replayed = [compare_bundles(src, out, [name], runs=runs, captured=True) for name in captured]
+    sizes = {name: ((src / name).stat().st_size, (out / name).stat().st_size) for name in converters}
     card = out / "MODEL_CARD.md"
     if card.is_file():
         text = _quantisation_row(card.read_text(encoding="utf-8"), written)
         source = "the int8 bundle" if from_int8 else "the float32 bundle"
-        card.write_text(f"{text.rstrip()}\n\n{card_section(label, report.as_dict(), sizes, source)}",
-                        encoding="utf-8")
+        sections = [card_section(label, report.as_dict(), {name: sizes[name] for name in graphs}, source)]
+        sections += [captured_section(label, name, one.as_dict(), sizes[name]) for name, one in zip(captured, replayed)]
+        card.write_text("\n\n".join([text.rstrip(), *sections]), encoding="utf-8")
         written = write_bundle(out, {name: out / name for name in names}, written)
-    return written, {**report.as_dict(), "scheme": label,
-                     "bytes": {name: {"float32": a, label: b} for name, (a, b) in sizes.items()}}
+    measured = {**report.as_dict(), "scheme": label,
+                "bytes": {name: {"float32": a, label: b} for name, (a, b) in sizes.items()}}
+    if captured:
+        measured["captured"] = {name: one.as_dict() for name, one in zip(captured, replayed)}
+    return written, measured
 
 
 def _quantisation_row(card: str, manifest: dict[str, Any]) -> str:
@@ -176,6 +196,17 @@ def card_section(label: str, report: dict[str, Any], sizes: dict[str, tuple[int,
                      f"({g['calls']} calls; its logits up to {g['max_abs_logit']:.3g}); {before / 1e6:.1f} -> "
                      f"{after / 1e6:.1f} MB")
     return "\n".join(lines) + "\n"
+
+
+def captured_section(label: str, name: str, report: dict[str, Any], sizes: tuple[int, int]) -> str:
+    """The model card's paragraph on a converted captured graph (served only with T2M_CUDA_GRAPHS on a GPU)."""
+    graph = report["graphs"][name]
+    return (f"`{name}` (the step T2M_CUDA_GRAPHS replays on a GPU) is {label} too. Served that way (here on the CPU "
+            f"provider, which steps it without capturing), {report['runs']} seeded requests of {report['seconds']:g} "
+            f"s: {report['agreeing']} of {report['tokens']} tokens the same as the float32 step's "
+            f"({100 * report['agreement']:.1f}%); max |logit diff| {graph['max_abs_logit_diff']:.3g} on the float32 "
+            f"trajectory, its own cache ({graph['calls']} calls; logits up to {graph['max_abs_logit']:.3g}); "
+            f"{sizes[0] / 1e6:.1f} -> {sizes[1] / 1e6:.1f} MB.\n")
 
 
 def quantize_bundle_gpt(src: str | Path, out: str | Path, version: str | None = None,
