@@ -186,6 +186,11 @@ class DiffusionFamily(ModelFamily):
                else f"whole motions, joins in-betweened over {s.join_frames} + {s.join_context} frames a side")
         return f"diffusion: {s.arch}, {s.steps} steps, {s.text_conditioning} text, {how}, guidance {guidance:g}"
 
+    def replayable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """The denoiser: a request's diffusion steps (50-1000 for MDM, 10 per DiP window) call it with the same
+        shapes, and it has no cache."""
+        return (DENOISER_GRAPH,)
+
     def serve(self, bundle: Any) -> Any:
         from t2m.service.engine.diffusion_codes import DiffusionCodes
 

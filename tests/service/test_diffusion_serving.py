@@ -185,3 +185,21 @@ def test_a_dip_crossfade_changes_only_the_later_sentences_and_stays_deterministi
     assert np.abs(crossed[20:36] - plain[20:36]).max() > 1e-3
     together = made(faded, [request(), request(4, guidance=1.0)])
     assert np.abs(together[0] - crossed).max() < 1e-5
+
+
+@pytest.mark.parametrize("name", ["mdm", "dip", "mdm-unmasked"])
+def test_with_cuda_graphs_the_denoiser_is_replayed_and_gives_the_plain_motion(bundles, engines, name):
+    """T2M_CUDA_GRAPHS opens denoiser.onnx as a replayed graph (engine/graphed_step.py GraphedSession): here on the
+    CPU provider, which captures nothing, the same motion for a seed, its calls through the replay buffers (one
+    shape per distinct call; the 2022 MDM without frame masks crops per length). The exported denoisers have no
+    host copy inside a run, so onnxruntime can capture them on a GPU (t2m/export/graphs/capture_check.py)."""
+    from t2m.export.graphs.capture_check import capture_blockers
+    from t2m.service.engine.engine import OnnxEngine
+    from t2m.service.engine.execution import Execution
+
+    replayed = OnnxEngine.load(bundles / name, intra_op_threads=1, execution=Execution(cuda_graphs=True))
+    assert list(replayed.bundle.replays) == ["denoiser.onnx"]
+    for _ in range(2):                                   # the second time through, every shape's buffers are reused
+        np.testing.assert_array_equal(replayed.generate(request(7)).joints, engines[name].generate(request(7)).joints)
+    assert replayed.bundle.replays["denoiser.onnx"].captured_shapes > 0
+    assert capture_blockers(bundles / name / "denoiser.onnx") == []

@@ -38,7 +38,7 @@ from torch import nn
 
 from t2m.model.networks.config import ConfigDict
 from t2m.model.networks.gpt import sinusoid_table
-from t2m.model.networks.token_transformer import InputProcess
+from t2m.model.networks.token_transformer import InputProcess, attention_scale, index_range
 
 __all__ = ["MDM", "AveragedMDM", "DiffusionConfig", "released_weights"]
 
@@ -203,7 +203,7 @@ class Attention(nn.Module):
 
     def __init__(self, dim: int, heads: int, dropout: float) -> None:
         super().__init__()
-        self.heads, self.dropout = heads, dropout
+        self.heads, self.dropout, self.scale = heads, dropout, attention_scale(dim // heads)
         self.in_proj_weight = nn.Parameter(nn.init.xavier_uniform_(torch.empty(3 * dim, dim)))
         self.in_proj_bias = nn.Parameter(torch.zeros(3 * dim))
         self.out_proj = nn.Linear(dim, dim)
@@ -218,7 +218,8 @@ class Attention(nn.Module):
         q = self._heads(x, weights[0], biases[0])
         k, v = self._heads(source, weights[1], biases[1]), self._heads(source, weights[2], biases[2])
         mask = None if keys is None else keys[:, None, None, :]
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.dropout if self.training else 0.0)
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=self.dropout if self.training else 0.0,
+                                           scale=self.scale)
         return self.out_proj(y.transpose(1, 2).flatten(2))
 
 
@@ -309,9 +310,8 @@ class MDM(nn.Module):
         frames = x.shape[1]
         if prefix is not None:
             x = torch.cat([prefix, x], dim=1)
-            length = None if length is None else length + prefix.shape[1]
         h = self.input_process(x)                                  # [B, S, E]
-        keys = self._frame_keys(length, h.shape[1])
+        keys = self._frame_keys(length, h.shape[1], prefix)
         time = self.embed_timestep(timesteps)                      # [B, 1, E]
         if self.config.arch == "trans_enc":
             condition = time + self.embed_text(text)[:, None]
@@ -338,11 +338,19 @@ class MDM(nn.Module):
         out = self.seqTransDecoder(target, keys, memory, memory_keys)
         return out[:, 1:] if self.config.emb_trans_dec else out
 
-    def _frame_keys(self, length: torch.Tensor | None, frames: int) -> torch.Tensor | None:
-        """[B, S] True up to each row's length, when the model masks frames (and, as officially, S > 1)."""
+    def _frame_keys(self, length: torch.Tensor | None, frames: int,
+                    prefix: torch.Tensor | None = None) -> torch.Tensor | None:
+        """[B, S] True up to each row's length, when the model masks frames (and, as officially, S > 1); S counts
+        the prefix's frames, which are always valid (`length` counts x's frames only). The prefix's columns are
+        joined to x's mask rather than added to `length`: a length plus a traced prefix size would be worked out on
+        the host by onnxruntime's CUDA provider and copied to the device inside each run
+        (t2m/export/graphs/capture_check.py)."""
         if not self.config.mask_frames or length is None or frames <= 1:
             return None
-        return torch.arange(frames, device=length.device)[None, :] < length[:, None]
+        if prefix is None:
+            return index_range(frames, length)[None, :] < length[:, None]
+        valid = index_range(frames - prefix.shape[1], length)[None, :] < length[:, None]
+        return torch.cat([torch.ones_like(prefix[:, :, 0], dtype=torch.bool), valid], dim=1)
 
 
 class AveragedMDM(nn.Module):

@@ -128,6 +128,11 @@ class Bundle:
     # replayed as CUDA graphs; the family's steps call these instead
     replays: dict[str, GraphedSession] = field(default_factory=dict)
 
+    def step_session(self, file: str) -> ort.InferenceSession | GraphedSession | None:
+        """What a family's steps call for `file`: its replayed copy where T2M_CUDA_GRAPHS made one, else its
+        session (None: the bundle has no such graph)."""
+        return self.replays.get(file) or self.sessions.get(file)
+
     @property
     def encoder_session(self) -> ort.InferenceSession | None:
         """encoder.onnx (features -> codes) where the bundle has one, else None: uploaded motions are refused."""

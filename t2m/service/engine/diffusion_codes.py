@@ -149,7 +149,7 @@ class DiffusionCodes:
         self.settings = manifest.settings   # t2m.families.diffusion.DiffusionSettings
         self.features = manifest.feature_dim
         self.schedule = cosine_schedule(self.settings.steps)
-        self.denoiser: Any = OnnxDenoiser(bundle.sessions["denoiser.onnx"])
+        self.denoiser: Any = OnnxDenoiser(bundle.step_session("denoiser.onnx"))   # replayed with T2M_CUDA_GRAPHS
         self.decoder_reach = frame_reach(bundle.decoder_session, self.features)
         self.body_parts = part_channels(get_skeleton(manifest.skeleton).joint_names, self.features)
         self.prefix: np.ndarray | None = None

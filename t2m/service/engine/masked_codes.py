@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 import onnxruntime as ort
@@ -70,11 +69,8 @@ class MaskedCodes:
     def _steps(bundle: Bundle, files: tuple[str, str], columns: int, mask_id: int, pad_id: int,
                mask_class: bool) -> tuple[OnnxMaskedStep, OnnxResidualStep | None]:
         """One generator's steps: its masked graph, and its residual graph when the VQ has more than one layer."""
-        def session(file: str) -> Any:   # the replayed copy where T2M_CUDA_GRAPHS made one
-            return bundle.replays.get(file) or bundle.sessions.get(file)
-
-        residual = session(files[1])
-        return (OnnxMaskedStep(session(files[0]), columns, mask_id),
+        residual = bundle.step_session(files[1])
+        return (OnnxMaskedStep(bundle.step_session(files[0]), columns, mask_id),
                 None if residual is None else OnnxResidualStep(residual, bundle.manifest.residual_layers, pad_id,
                                                                mask_id if mask_class else None))
 
