@@ -75,9 +75,9 @@ class Settings(BaseSettings):
     cuda_graphs: bool = Field(
         False, description="Replay step graphs as CUDA graphs (needs 'cuda' in execution_providers): the masked "
                             "family's token graphs, the diffusion family's denoiser, and a GPT bundle's "
-                            "gpt_step_fixed.onnx (t2m import t2m-gpt --cuda-graph-step). One launch per call instead of one per kernel: a MoMask-size "
-                            "request 56 -> 24 ms on an H100 (docs/gpu.md). A graph onnxruntime will not capture "
-                            "(older exports) is served without, with a warning.")
+                            "gpt_step_fixed.onnx (t2m import t2m-gpt --cuda-graph-step). One launch per call "
+                            "instead of one per kernel: a MoMask-size request 56 -> 24 ms on an H100 (docs/gpu.md). "
+                            "A graph onnxruntime will not capture (older exports) is served without, with a warning.")
     cuda_graph_shapes: int = Field(16, ge=1, le=1024, description="With cuda_graphs: how many input shapes (batch "
                                    "size x rows) each graph captures, the first ones seen; later shapes run "
                                    "uncaptured (each capture holds device memory for the process's life).")
