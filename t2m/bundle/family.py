@@ -144,6 +144,9 @@ class ModelFamily:
         """`t2m export --family NAME`'s own options (their dests must not collide with another family's)."""
 
     int8_graphs: ClassVar[frozenset[str]] = frozenset()               # what `t2m export --int8` may name
+    # the seeded requests (how many, seconds each) a quantised copy is served on beside its original by default
+    # (t2m.export.writing.bundle_parity); a family whose requests cost many network calls asks for fewer
+    quantize_parity: ClassVar[tuple[int, float]] = (8, 10.0)
 
     def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         """The graph files of a bundle that `t2m quantize` and `t2m import --quantize` rewrite (int8, int4, fp16):

@@ -101,6 +101,9 @@ class DiffusionFamily(ModelFamily):
     evaluates_bundle = True   # `t2m eval --bundle`: frames of exact lengths, streams as served
     bundle_evaluation = "t2m.export.diffusion_evaluation:diffusion_bundle_models"
     int8_graphs = frozenset({"text"})   # `t2m export --int8 text` (a trained run's MiniLM token-state graph)
+    # a request is 50-1000 denoiser calls (MDM) where a token model makes ~50 smaller ones, and parity serves it
+    # three times (the original, its quantised twin on the same feeds, the copy): two requests of 2 s
+    quantize_parity = (2, 2.0)
 
     def capabilities_of(self, manifest: Any) -> Capabilities:
         """DiP streams call by call (each call's frames are final: later calls only read them); MDM's whole motions
@@ -185,6 +188,10 @@ class DiffusionFamily(ModelFamily):
         how = (f"{s.pred_len}-frame calls after {s.context_len} frames{fade}" if s.chained
                else f"whole motions, joins in-betweened over {s.join_frames} + {s.join_context} frames a side")
         return f"diffusion: {s.arch}, {s.steps} steps, {s.text_conditioning} text, {how}, guidance {guidance:g}"
+
+    def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
+        """The denoiser: called at every diffusion step (`t2m quantize`, `t2m import mdm|dip --quantize`)."""
+        return (DENOISER_GRAPH,)
 
     def replayable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         """The denoiser: a request's diffusion steps (50-1000 for MDM, 10 per DiP window) call it with the same

@@ -17,13 +17,10 @@ its bounds are set under the measured values with room for that path-dependence.
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
 from pathlib import Path
 
-import numpy as np
 import onnx
 import pytest
 from mogents_release_files import RELEASE as MOGENTS_RELEASE  # type: ignore[import-not-found]
@@ -34,11 +31,11 @@ from momask_release_files import RELEASE as MOMASK_RELEASE  # type: ignore[impor
 from momask_release_files import SMALL as MOMASK_SMALL
 from momask_release_files import release_states as momask_states
 from momask_release_files import write_release as write_momask
+from quantized_copies import printed_json, run_t2m, with_doubled_weights  # type: ignore[import-not-found]
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]
 
 from t2m.cli.main import main as t2m
 from t2m.export.families.gpt_random import build_random_bundle
-from t2m.export.writing.bundle import write_bundle
 from t2m.export.writing.bundle_parity import compare_bundles
 from t2m.export.writing.int8 import quantized_graphs
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
@@ -81,18 +78,6 @@ def text_options(kind: str, folder: Path) -> list[str]:
     if kind == "t2m-gpt":
         return ["--text-encoder-bundle", str(build_random_bundle(folder / "text", text_dim=512, codebook_size=16))]
     return ["--clip", str(save_torchscript_archive(openai_clip_state(**SMALL_CLIP, seed=5), folder / "ViT-B-32.pt"))]
-
-
-def run_t2m(*argv: str) -> tuple[int, str]:
-    stdout = io.StringIO()
-    with contextlib.redirect_stdout(stdout):
-        code = t2m(list(argv))
-    return code, stdout.getvalue()
-
-
-def printed_json(stdout: str) -> dict:
-    """The JSON object an import or `t2m quantize` prints before its summary lines."""
-    return json.loads(stdout[: stdout.rindex("}") + 1])
 
 
 def check_parity(report: dict, scheme: str, agreement: float | None = None, logits: float | None = None) -> None:
@@ -187,22 +172,7 @@ def test_a_wrongly_quantised_graph_fails_the_parity_bounds(imports, tmp_path):
     scale: one layer's worth) in MoMask's int8 masked graph; the comparison that passes the real quantisation fails
     it."""
     src = imports["momask"]["int8"][0]
-    out = tmp_path / "wrong"
-    out.mkdir()
-    manifest = json.loads((src / "manifest.json").read_text())
-    for name in manifest["files"]:
-        (out / name).write_bytes((src / name).read_bytes())
-    model = onnx.load(str(out / "masked.onnx"))
-    weights = {init.name: init for init in model.graph.initializer}
-    first_layer = [node for node in model.graph.node if node.op_type == "MatMulInteger" and "cond" not in
-                   node.input[1]][:4]
-    for node in first_layer:
-        if node.input[1] in weights:
-            doubled = onnx.numpy_helper.to_array(weights[node.input[1]]).astype(np.int16) * 2
-            weights[node.input[1]].CopyFrom(onnx.numpy_helper.from_array(doubled.clip(-128, 127).astype(np.int8),
-                                                                         node.input[1]))
-    onnx.save(model, str(out / "masked.onnx"))
-    write_bundle(out, {name: out / name for name in manifest["files"]}, manifest)
+    out = with_doubled_weights(src, tmp_path / "wrong", "masked.onnx", lambda node: "cond" not in node.input[1])
     float32 = imports["momask"]["float32"][0]
     good = compare_bundles(float32, src, ["masked.onnx"]).as_dict()
     wrong = compare_bundles(float32, out, ["masked.onnx"]).as_dict()

@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--scheme", choices=("int8", "int4", "fp16", "float32"), default="int8", help=SCHEME_HELP)
     parser.add_argument("--version", default=None, help="the copy's version (default: the original's)")
     parser.add_argument("--parity-runs", type=int, default=None, metavar="N",
-                        help="seeded requests served on both bundles to measure parity (default 8; 0 skips it)")
+                        help="seeded requests served on both bundles to measure parity (default 8 of 10 s; a "
+                             "diffusion bundle 2 of 2 s; 0 skips it)")
     parser.set_defaults(func=run)
 
 
@@ -60,7 +61,17 @@ def summary(manifest: dict, output: Path, report: dict | None) -> str:
                                                 if done.get(Path(name).stem))]
     graphs = ", ".join(f"{name} {done[Path(name).stem]} ({(output / name).stat().st_size / 1e6:.1f} MB)"
                        for name in converted)
-    parity = "" if report is None else (f"; {100 * report['agreement']:.1f}% of tokens as the original's over "
-                                        f"{report['runs']} seeded requests, max |logit diff| "
-                                        f"{report['max_abs_logit_diff']:.3g}")
+    parity = "" if report is None else (f"; {parity_words(report)} over {report['runs']} seeded requests, "
+                                        f"max |{_output(report)} diff| {report['max_abs_logit_diff']:.3g}")
     return f"{manifest['name']} {manifest['version']}: {graphs}{parity}; written to {output} and verified"
+
+
+def parity_words(report: dict) -> str:
+    """Token agreement, or for a family without tokens (diffusion) how far the served joints moved."""
+    if report["tokens"]:
+        return f"{100 * report['agreement']:.1f}% of tokens as the original's"
+    return f"joints within {report['max_joint_diff_m']:.3g} m of the original's"
+
+
+def _output(report: dict) -> str:
+    return next((graph["output"] for graph in report["graphs"].values()), "logit")

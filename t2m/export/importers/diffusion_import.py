@@ -74,6 +74,7 @@ class DiffusionImportChecks:
     """What the import measured: onnxruntime vs PyTorch on the written graphs (float32)."""
 
     parity: dict[str, Any] = field(default_factory=dict)
+    quantization: dict[str, Any] | None = None     # `--quantize`: the copy against this import (bundle_parity)
 
     def model_card_section(self) -> str:
         p = self.parity

@@ -1,15 +1,18 @@
 """A quantised bundle against its float32 original, as served: the same seeded requests through the service's engine
 on both bundles, for any family.
 
-Two figures, because they answer two questions:
+Three figures, because they answer three questions:
 
 - token agreement: the share of token positions where the quantised bundle draws the same token as the float32
   one for the same request and seed (sampling as served, the family's default settings). It is what a user sees
   change: once a draw differs, the rest of that motion may follow another path, so this is a lower bound on how
-  close the logits are and 1.0 means "the same motions";
-- max |logit diff|: each quantised graph run on exactly the feeds its float32 twin saw during those requests (the
-  float32 trajectory, teacher-forced), outputs whose name says logit compared; with the largest float32 logit
-  beside it as the scale to read it against.
+  close the logits are and 1.0 means "the same motions". A family without tokens (diffusion: the decoder reads
+  float features) has none;
+- max |logit diff| (the diffusion denoiser: max |x0 diff|): each quantised graph run on exactly the feeds its
+  float32 twin saw during those requests (the float32 trajectory, teacher-forced), outputs whose name says logit
+  (or x0) compared; with the largest float32 value beside it as the scale to read it against;
+- the largest joint difference: how far apart, in metres, the two bundles put any joint of the served motions
+  for the same request and seed (frames both have). For a diffusion model it is the whole run's drift.
 
 A family's captured graphs (the GPT's gpt_step_fixed.onnx, which T2M_CUDA_GRAPHS serves) are measured the same way
 with `captured=True`: both bundles served with CUDA graphs asked for, which on the CPU provider steps those graphs
@@ -43,12 +46,15 @@ class GraphParity:
     file: str
     calls: int = 0
     max_abs_logit_diff: float = 0.0
-    max_abs_logit: float = 0.0       # the float32 logits' scale
+    max_abs_logit: float = 0.0       # the float32 outputs' scale
+    output: str = "logit"            # what was compared: logit outputs, or the denoiser's x0
 
     def compare(self, name: str, fp32: np.ndarray, quantised: np.ndarray) -> None:
-        """One call's output `name` of both graphs: kept when it is a logit output; non-finite twins refused."""
-        if "logit" not in name:
+        """One call's output `name` of both graphs: kept when it is a logit output (or a denoiser's x0);
+        non-finite twins refused."""
+        if "logit" not in name and name != "x0":
             return
+        self.output = "x0" if name == "x0" else "logit"
         if not np.isfinite(quantised).all():
             raise ValueError(f"{self.file}: the quantised graph gave non-finite {name}")
         self.max_abs_logit_diff = max(self.max_abs_logit_diff, float(np.abs(fp32 - quantised).max()))
@@ -61,8 +67,9 @@ class BundleParity:
 
     runs: int
     seconds: float
-    tokens: int = 0                  # token positions compared (the longer of the two runs' sequences)
+    tokens: int = 0                  # token positions compared (the longer of the two runs' sequences; 0: none)
     agreeing: int = 0
+    max_joint_diff_m: float = 0.0    # the served motions' largest joint difference, over frames both have
     graphs: dict[str, GraphParity] = field(default_factory=dict)
 
     @property
@@ -76,7 +83,7 @@ class BundleParity:
     def as_dict(self) -> dict[str, Any]:
         return {"runs": self.runs, "seconds": self.seconds, "tokens": self.tokens, "agreeing": self.agreeing,
                 "agreement": self.agreement, "max_abs_logit_diff": self.max_abs_logit_diff,
-                "graphs": {name: vars(g) for name, g in self.graphs.items()}}
+                "max_joint_diff_m": self.max_joint_diff_m, "graphs": {name: vars(g) for name, g in self.graphs.items()}}
 
 
 class _ComparingSession:
@@ -156,15 +163,21 @@ def compare_bundles(fp32_dir: str | Path, quantised_dir: str | Path, graphs: Seq
     guidance = engines[0].limits.default_guidance
     requests = [GenerationRequest(segments=[SegmentRequest(TEXTS[run % len(TEXTS)], seconds)], seed=run,
                                   guidance=guidance) for run in range(runs)]
-    for a, b in zip(*(_served_codes(engine, requests) for engine in engines)):
-        common = min(a.size, b.size)
-        report.tokens += max(a.size, b.size)
-        report.agreeing += int((a[:common] == b[:common]).sum())
+    for (a, joints_a), (b, joints_b) in zip(*(_served(engine, requests) for engine in engines)):
+        if np.issubdtype(a.dtype, np.integer):       # tokens; a diffusion decoder reads float features
+            common = min(a.size, b.size)
+            report.tokens += max(a.size, b.size)
+            report.agreeing += int((a[:common] == b[:common]).sum())
+        frames = min(len(joints_a), len(joints_b))
+        if frames:
+            distance = np.linalg.norm(joints_a[:frames] - joints_b[:frames], axis=-1).max()
+            report.max_joint_diff_m = max(report.max_joint_diff_m, float(distance))
     return report
 
 
-def _served_codes(engine: Any, requests: Sequence[Any]) -> list[np.ndarray]:
-    """The codes each request's motion was decoded from, flattened (the decoder's input, caught on the way)."""
+def _served(engine: Any, requests: Sequence[Any]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per request, what its motion was decoded from, flattened (the decoder's input, caught on the way: codes,
+    or a diffusion model's features), and the served joints [frames, J, 3]."""
     seen: list[np.ndarray] = []
     decode = engine.decoder.decode
 
@@ -177,8 +190,8 @@ def _served_codes(engine: Any, requests: Sequence[Any]) -> list[np.ndarray]:
     try:
         for request in requests:
             seen.clear()
-            engine.generate(request)
-            result.append(np.concatenate(seen) if seen else np.zeros(0, np.int64))
+            joints = engine.generate(request).joints
+            result.append((np.concatenate(seen) if seen else np.zeros(0, np.int64), joints))
     finally:
         engine.decoder.decode = decode
     return result

@@ -73,22 +73,25 @@ def _from_int8(quantize: Callable[[Path, Path], Path]) -> Callable[[Path, Path],
     return convert
 
 
-def quantized_graphs(manifest: dict[str, Any]) -> tuple[str, ...]:
-    """The graph files of this manifest's family that a quantisation rewrites (none: the family has none)."""
+def family_of_manifest(manifest: dict[str, Any]) -> Any:
+    """The manifest's model family (t2m.bundle.family.ModelFamily)."""
     from t2m.bundle import family_of, get_family
 
-    return get_family(family_of(manifest)).quantizable_graphs(manifest)
+    return get_family(family_of(manifest))
+
+
+def quantized_graphs(manifest: dict[str, Any]) -> tuple[str, ...]:
+    """The graph files of this manifest's family that a quantisation rewrites (none: the family has none)."""
+    return family_of_manifest(manifest).quantizable_graphs(manifest)
 
 
 def captured_graphs_to_convert(manifest: dict[str, Any], scheme: str) -> tuple[str, ...]:
     """The family's captured graphs (the GPT's gpt_step_fixed.onnx, replayed as CUDA graphs) this bundle holds and
     `scheme` converts: fp16 only, as they exist for GPUs (int8 and int4 would make them slow there; they are float32
     already)."""
-    from t2m.bundle import family_of, get_family
-
     if scheme != "fp16":
         return ()
-    captured = get_family(family_of(manifest)).captured_graphs(manifest)
+    captured = family_of_manifest(manifest).captured_graphs(manifest)
     return tuple(name for name in captured if name in manifest.get("files", {}))
 
 
@@ -104,7 +107,7 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
     from `src`: the float32 original is what the copy is measured against); returns (the written manifest, the parity
     report as a dict, or None without `parity`). `version` replaces the manifest's version (a shipped bundle whose
     outputs change gets a new one)."""
-    from t2m.export.writing.bundle_parity import PARITY_RUNS, compare_bundles
+    from t2m.export.writing.bundle_parity import compare_bundles
 
     quantize, label = _quantizer(scheme)
     src, out = Path(src), Path(out)
@@ -152,9 +155,10 @@ def quantize_bundle(src: str | Path, out: str | Path, version: str | None = None
         written = write_bundle(out, {name: staged / name for name in names}, manifest)
     if not parity:
         return written, None
-    runs = PARITY_RUNS if runs is None else runs
-    report = compare_bundles(src, out, graphs, runs=runs)
-    replayed = [compare_bundles(src, out, [name], runs=runs, captured=True) for name in captured]
+    default_runs, seconds = family_of_manifest(manifest).quantize_parity
+    runs = default_runs if runs is None else runs
+    report = compare_bundles(src, out, graphs, runs=runs, seconds=seconds)
+    replayed = [compare_bundles(src, out, [name], runs=runs, seconds=seconds, captured=True) for name in captured]
     sizes = {name: ((src / name).stat().st_size, (out / name).stat().st_size) for name in converters}
     card = out / "MODEL_CARD.md"
     if card.is_file():
@@ -187,15 +191,22 @@ def card_section(label: str, report: dict[str, Any], sizes: dict[str, tuple[int,
              f"encoder, decoder, any length graph) are {source}'s, as the manifest's `quantization` says (they run "
              "once per request, not per step).", "",
              f"Measured as served, on {report['runs']} seeded one-sentence requests of {report['seconds']:g} s at the "
-             f"bundle's default settings (sampling as served): {report['agreeing']} of {report['tokens']} tokens the "
-             f"same as {source}'s ({100 * report['agreement']:.1f}%; once one draw differs, the rest of "
-             "that motion may take another path).", ""]
+             f"bundle's default settings (sampling as served): {_agreement(report, source)}; the served joints at "
+             f"most {report['max_joint_diff_m']:.3g} m from {source}'s.", ""]
     for name, (before, after) in sizes.items():
         g = report["graphs"][name]
-        lines.append(f"- `{name}`: max |logit diff| {g['max_abs_logit_diff']:.3g} on {source}'s trajectory "
-                     f"({g['calls']} calls; its logits up to {g['max_abs_logit']:.3g}); {before / 1e6:.1f} -> "
-                     f"{after / 1e6:.1f} MB")
+        lines.append(f"- `{name}`: max |{g['output']} diff| {g['max_abs_logit_diff']:.3g} on {source}'s trajectory "
+                     f"({g['calls']} calls; its {g['output']} values up to {g['max_abs_logit']:.3g}); "
+                     f"{before / 1e6:.1f} -> {after / 1e6:.1f} MB")
     return "\n".join(lines) + "\n"
+
+
+def _agreement(report: dict[str, Any], source: str) -> str:
+    """The card's words for token agreement, or why there is none (a diffusion model's decoder reads features)."""
+    if not report["tokens"]:
+        return "no tokens to compare (its decoder reads float features)"
+    return (f"{report['agreeing']} of {report['tokens']} tokens the same as {source}'s "
+            f"({100 * report['agreement']:.1f}%; once one draw differs, the rest of that motion may take another path)")
 
 
 def captured_section(label: str, name: str, report: dict[str, Any], sizes: tuple[int, int]) -> str:
