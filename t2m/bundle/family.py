@@ -150,9 +150,10 @@ class ModelFamily:
 
     def quantizable_graphs(self, manifest: Mapping[str, Any]) -> tuple[str, ...]:
         """The graph files of a bundle that `t2m quantize` and `t2m import --quantize` rewrite (int8, int4, fp16):
-        the token graphs, whose MatMul weights carry the per-step cost; each one's manifest key is
-        `quantization.<file stem>`. The text encoder (run once per request; `t2m export --int8 text` is its
-        option), the decoder and the length graph are not among them. None: the family has nothing to quantise."""
+        the graphs called at every step (token graphs, a diffusion denoiser), whose MatMul weights carry the
+        per-step cost; each one's manifest key is `quantization.<file stem>`. The text encoder (run once per
+        request; `t2m export --int8 text` is its option), the decoder and the length graph are not among them.
+        None: the family has nothing to quantise."""
         return ()
 
     def captured_graphs(self, manifest: Mapping[str, Any]) -> dict[str, Any]:
