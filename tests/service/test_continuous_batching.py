@@ -114,14 +114,17 @@ def test_the_batcher_lets_a_request_join_a_running_batch(engine):
     order: list[str] = []
     futures: dict[str, Future] = {}
     submitted = threading.Event()
+    recording = _ThreadRecordingEngine(engine)
 
     def on_step(steps: int) -> None:
         if steps == 5 and not submitted.is_set():
             submitted.set()
             futures["short"] = batcher.submit_nowait(_short())
             futures["short"].add_done_callback(lambda _: order.append("short"))
+        elif submitted.is_set():   # the long request must not end before the helper prepared the short one
+            recording.prepared.wait(timeout=60)
 
-    batcher = ContinuousBatcher(engine, window_s=0.0, on_step=on_step)
+    batcher = ContinuousBatcher(recording, window_s=0.0, on_step=on_step)
     try:
         futures["long"] = batcher.submit_nowait(_long())
         futures["long"].add_done_callback(lambda _: order.append("long"))
@@ -261,18 +264,26 @@ def test_hifigpt_cohorts_of_different_ages_share_the_residual_calls(hifigpt_bund
 
 
 class _ThreadRecordingEngine:
-    """The engine, with the thread each `prepare` and `finish` the batcher calls runs on recorded."""
+    """The engine, with the thread each `prepare` and `finish` the batcher calls runs on recorded. The batcher calls
+    `prepare` only for requests that join while others step (on its helper; a session starting alone prepares with
+    the engine itself): `prepared` is set once such a preparation returned or raised (`prepare_error`)."""
 
-    def __init__(self, engine) -> None:
-        self._engine = engine
+    def __init__(self, engine, prepare_error: Exception | None = None) -> None:
+        self._engine, self.prepare_error = engine, prepare_error
         self.threads: list[tuple[str, str]] = []      # (call, thread name)
+        self.prepared = threading.Event()
 
     def __getattr__(self, name: str):
         return getattr(self._engine, name)
 
     def prepare(self, requests):
         self.threads.append(("prepare", threading.current_thread().name))
-        return self._engine.prepare(requests)
+        try:
+            if self.prepare_error is not None:
+                raise self.prepare_error
+            return self._engine.prepare(requests)
+        finally:
+            self.prepared.set()
 
     def finish(self, request, codes, notes):
         self.threads.append(("finish", threading.current_thread().name))
@@ -287,6 +298,8 @@ def _short_joining_at_step_3(engine_like) -> tuple[dict[str, Future], Continuous
     def on_step(steps: int) -> None:
         if steps == 3 and "short" not in futures:
             futures["short"] = batcher.submit_nowait(_short())
+        elif "short" in futures:   # a tiny model's long request must not end before the helper prepared the short one
+            engine_like.prepared.wait(timeout=60)
 
     batcher = ContinuousBatcher(engine_like, window_s=0.0, on_step=on_step)
     try:
@@ -315,12 +328,7 @@ def test_a_preparation_that_raises_fails_its_requests_and_nothing_else(engine):
     """The helper's text work failing (not a request's own error, which `prepare` answers itself) answers the
     requests it was preparing with that error; the cohort already stepping goes on to its motion."""
     alone_long = engine.generate(_long())
-    recording = _ThreadRecordingEngine(engine)
-
-    def broken(requests):
-        raise RuntimeError("text graph unavailable")
-
-    recording.prepare = broken
+    recording = _ThreadRecordingEngine(engine, prepare_error=RuntimeError("text graph unavailable"))
     futures, batcher = _short_joining_at_step_3(recording)
     with pytest.raises(RuntimeError, match="text graph unavailable"):
         futures["short"].result()
