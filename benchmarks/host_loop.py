@@ -7,7 +7,7 @@ benchmarks/gpu_suite.py adds the default loop over instant steps as a "host loop
 on the device's own CPU beside its GPU rows.
 
     PYTHONPATH=. python benchmarks/host_loop.py [--batches 1,64,256,1024] [--repeats 3] [--draw-groups 128,0]
-        [--loops default,momask,t2m-gpt] [--gc frozen,as-is]
+        [--loops default,momask,t2m-gpt] [--gc frozen,as-is] [--threads 1,2,4]
 
 --draw-groups: the sizes of t2m.decoding.lockstep.DRAW_GROUP to compare side by side (0: one draw for all rows),
 alternating within each repeat. --gc: the garbage collector as the service leaves it after loading (frozen: every
@@ -23,6 +23,7 @@ import gc
 import json
 import statistics
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -150,6 +151,30 @@ LOOPS = {"default": ("default (T2M-HiFiGPT)", default_loop), "momask": ("MoMask 
          "t2m-gpt": ("T2M-GPT release", t2m_gpt_loop)}
 
 
+def threaded(label: str, make: Callable[[int], tuple[Callable[[int], np.ndarray], int]], batches: list[int],
+             threads: list[int], repeats: int) -> None:
+    """--threads: each batch split over N threads, each stepping its own loop (as T2M_ENGINE_WORKERS threads step
+    their cohorts side by side), the collector frozen: whether Python threads overlap host loops. They share one
+    interpreter lock; numpy lets go of it only inside its array loops."""
+    loops = [make(max(batches))[0] for _ in range(max(threads))]
+    print("| loop | threads | batch (split evenly) | ms per batch of 10 s motions | host cap, motions / s |\n"
+          "| --- | ---: | ---: | ---: | ---: |")
+    for batch in batches:
+        for count in threads:
+            runs = []
+            for _ in range(repeats + 1):                     # the first is a warm-up
+                workers = [threading.Thread(target=loops[i], args=(batch // count,)) for i in range(count)]
+                with collector("frozen"):
+                    started = time.perf_counter()
+                    for worker in workers:
+                        worker.start()
+                    for worker in workers:
+                        worker.join()
+                    runs.append(time.perf_counter() - started)
+            ms = 1000 * statistics.median(runs[1:])
+            print(f"| {label} | {count} | {batch} | {ms:.1f} | {1000 * batch / ms:.0f} |", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").strip().splitlines()[0])
     parser.add_argument("--batches", default="1,64,256,1024")
@@ -157,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--draw-groups", default=None, help="DRAW_GROUP sizes to compare (0 = all rows at once)")
     parser.add_argument("--loops", default="default", help=f"comma-separated, of {', '.join(LOOPS)}")
     parser.add_argument("--gc", default="frozen", help="comma-separated, of frozen (as the service runs) and as-is")
+    parser.add_argument("--threads", default=None, help="thread counts to split each batch over (a table of its own)")
     args = parser.parse_args(argv)
     modes = args.gc.split(",")
     if not modes or set(modes) - {"frozen", "as-is"}:
@@ -188,6 +214,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"| {label}, {steps} steps | {group or 'all'} | {batch} | {ms:.1f} | {1000 * batch / ms:.0f} | "
                       f"{mode} |", flush=True)
     print(f"- median of {args.repeats}; instant network calls; guidance (a cond and a null row per motion)")
+    if args.threads:
+        for name in args.loops.split(","):
+            label, make = LOOPS[name]
+            threaded(label, make, batches, [int(n) for n in args.threads.split(",")], args.repeats)
     return 0
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.decoding.tokens import RowRule, RowRules, guided_logits
+from t2m.decoding.tokens import RowRule, RowRules, guide_in_place, guided_logits
 
 __all__ = [
     "Cohort",
@@ -200,6 +200,11 @@ class _DrawGroup:
     scale: np.ndarray | None
     rules: RowRules
 
+    @property
+    def all_guided(self) -> bool:
+        """Every row guided (no scale of 1): guidance computed over the cond logits in place."""
+        return self.scale is not None and bool((self.scale != 1.0).all())
+
 
 class DrawPlan:
     """What draw_for_jobs works out from (job, active segments) before any logits: which rows hold each segment's
@@ -240,17 +245,20 @@ class DrawPlan:
         for index, group in enumerate(self.groups):
             if group.stop == group.start:
                 continue
-            cond = logits[group.cond].astype(np.float64)
-            chosen = cond
+            chosen = logits[group.cond].astype(np.float64)
             if group.scale is not None:
                 null = logits[group.null].astype(np.float64)
-                chosen = np.where((group.scale != 1.0)[:, None], guided_logits(cond, null, group.scale[:, None]),
-                                  cond)
+                if group.all_guided:
+                    guide_in_place(chosen, null, group.scale[:, None])
+                else:
+                    chosen = np.where((group.scale != 1.0)[:, None],
+                                      guided_logits(chosen, null, group.scale[:, None]), chosen)
             if forbid is not None:
                 mask, forbidden = forbid
                 chosen[np.asarray(mask, dtype=bool)[group.start:group.stop], forbidden] = -np.inf
             ahead = self._ahead[index] if self.draws > 1 else None
-            drawn[group.start:group.stop] = group.rules.draw(chosen, None if ahead is None else ahead[self.drawn])
+            drawn[group.start:group.stop] = group.rules.draw(chosen, None if ahead is None else ahead[self.drawn],
+                                                             owned=True)
         self.drawn += 1
         return drawn
 

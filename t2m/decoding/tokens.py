@@ -10,13 +10,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RowRule", "RowRules", "draw_stops", "draw_tokens", "draw_tokens_of_jobs", "guided_logits", "sample_tokens",
+__all__ = ["RowRule", "RowRules", "draw_stops", "draw_tokens", "draw_tokens_of_jobs", "guide_in_place", "guided_logits",
+           "sample_tokens",
            "stop_probability"]
 
 
 def guided_logits(cond: np.ndarray, uncond: np.ndarray, scale: float | np.ndarray) -> np.ndarray:
     """Classifier-free guidance: uncond + s * (cond - uncond) (s a number, or one per row as [N, 1])."""
     return uncond + scale * (cond - uncond)
+
+
+def guide_in_place(cond: np.ndarray, uncond: np.ndarray, scale: float | np.ndarray) -> np.ndarray:
+    """guided_logits written over `cond` (a float64 array the caller owns): the same three operations in the same
+    order, so the same bits (IEEE sums and products commute), without the three temporaries a large batch's draws
+    would allocate."""
+    np.subtract(cond, uncond, out=cond)
+    np.multiply(cond, scale, out=cond)
+    np.add(cond, uncond, out=cond)
+    return cond
 
 
 def draw_tokens(logits: np.ndarray, temperature: float, top_k: int | None, rng: np.random.Generator,
@@ -93,10 +104,12 @@ class RowRules:
         return np.concatenate([rule.rng.random(rule.rows * draws).reshape(draws, rule.rows)
                                for rule in self.drawn_rules], axis=1)
 
-    def draw(self, logits: np.ndarray, uniforms: np.ndarray | None = None) -> np.ndarray:
+    def draw(self, logits: np.ndarray, uniforms: np.ndarray | None = None, owned: bool = False) -> np.ndarray:
         """One class per row of `logits` [N, V] (N = the rules' rows): see draw_tokens_of_jobs. `uniforms`: this
-        draw's row of `uniforms(draws)`, drawn ahead; by default each rule's generator draws now."""
-        logits = np.array(logits, dtype=np.float64)
+        draw's row of `uniforms(draws)`, drawn ahead; by default each rule's generator draws now. `owned`: `logits`
+        is a float64 array the caller hands over, worked on in place instead of copied."""
+        if not (owned and logits.dtype == np.float64):
+            logits = np.array(logits, dtype=np.float64)
         choice = np.zeros(len(logits), dtype=np.int64)
         greedy = self.greedy
         if greedy.any():
