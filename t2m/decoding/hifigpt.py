@@ -85,11 +85,12 @@ class HiFiGPTCohort(lockstep.Cohort):
         context, stop, batch.past = self.temporal(batch.cond, codes_in, self.position, batch.length, batch.past)
         if on_step is not None:
             on_step(len(batch.owner))
-        rows = lockstep.row_maps(batch.owner)
+        rows = None          # worked out only when a free segment draws its stop (timed segments never do)
         live = []
         for job, active in lockstep.live_segments(batch, self.jobs, self.cancelled):
             free = [s for s in active if batch.segments[s].target is None and batch.segments[s].tokens]
             if free:
+                rows = rows or lockstep.row_maps(batch.owner)
                 guided = lockstep.guided(job, free, stop[:, None], rows)[:, 0]
                 stops = draw_stops(guided, job.temperature, job.rng, job.greedy)
                 for s, stopped in zip(free, stops):
