@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import gc
 import multiprocessing
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -23,8 +24,6 @@ EMBEDDED = ("gpt", "default", "masked")   # cases a process can build without wr
 def _serve_batches(name: str, graphs: str, workdir: str, device: str, batch: int, repeats: int, barrier: Any,
                    results: Any) -> None:
     """One process: the case's onnxruntime sampler and decoder, a warm-up, the barrier, `repeats` timed batches."""
-    import threading
-
     import torch
 
     from benchmarks import gpu_suite as suite
