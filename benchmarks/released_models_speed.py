@@ -26,10 +26,12 @@ max |diff| of a whole seeded run with injected noise, float32 vs int8.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -169,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"comma-separated subset of {','.join(IMPORTS)} (default all)")
     parser.add_argument("--diffusion-threads", default="1,2",
                         help="the diffusion table's onnxruntime threads, comma-separated (default 1,2)")
+    parser.add_argument("--json-out", type=Path, default=None,
+                        help="also write the token models' figures here: {threads: {model: {request: ms per stage}}}")
     args = parser.parse_args(argv)
     models = [name for name in args.models.split(",") if name]
     unknown = sorted(set(models) - set(IMPORTS))
@@ -184,9 +188,16 @@ def main(argv: list[str] | None = None) -> int:
         workdir = args.workdir or Path(temporary)
         bundles = build_bundles(workdir, models, schemes)
         tokens = {label: bundle for label, bundle in bundles.items() if label.split(" ")[0] not in DIFFUSION}
+        figures: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
         for threads in args.threads if tokens else ():
             print()
-            run_bundle_bench(list(tokens.values()), repeats=args.repeats, threads=threads, names=list(tokens))
+            results = run_bundle_bench(list(tokens.values()), repeats=args.repeats, threads=threads,
+                                       names=list(tokens))
+            figures[str(threads)] = {model: {request: {**asdict(times), "total": times.total}
+                                             for request, times in cases.items()}
+                                     for model, cases in results.items()}
+        if args.json_out:
+            args.json_out.write_text(json.dumps(figures, indent=2))
         diffusion = {label.split(" ")[0]: bundle for label, bundle in bundles.items()
                      if label.split(" ")[0] in DIFFUSION}
         if diffusion:

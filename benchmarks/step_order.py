@@ -140,6 +140,13 @@ def format_table(pooled: dict[tuple[str, str, str], PhaseResult], orders: dict[s
     return "\n".join(lines)
 
 
+def phase_figures(pooled: dict[tuple[str, str, str], PhaseResult]) -> list[dict]:
+    """--json-out's results: per (server, phase, kind) the phase's summary and its p90. The key's phase ("short
+    alone", "mixed", ...) replaces the summary's own name, which is only the request kind."""
+    return [{**result.summary(), "server": server, "phase": phase, "kind": kind, "p90_ms": result.percentile(90)}
+            for (server, phase, kind), result in pooled.items()]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--model", default="t2m/bundles/default", help="bundle served by both servers")
@@ -222,9 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     print(format_table(pooled, orders))
     if args.json_out:
         Path(args.json_out).write_text(json.dumps({"machine": {"before": before, "after": after}, "args": vars(args),
-                                                   "results": [{"server": m, "phase": p, "kind": k, **r.summary(),
-                                                                "p90_ms": r.percentile(90)}
-                                                               for (m, p, k), r in pooled.items()]}, indent=2))
+                                                   "results": phase_figures(pooled)}, indent=2))
     return 1 if any(r.status_5xx or r.connection_errors for r in pooled.values()) else 0
 
 
