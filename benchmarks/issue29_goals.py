@@ -33,14 +33,15 @@ def scheduling_rows(results: list[dict[str, Any]]) -> list[str]:
         return _phase(results, server, "mixed", "short")["p90_ms"] / _phase(results, server, "short alone",
                                                                              "short")["p90_ms"]
 
+    ratios = {server: ratio(server) for server in ("before", "after")}
     long_before = _phase(results, "before", "mixed", "long")["ok_per_s"]
     long_after = _phase(results, "after", "mixed", "long")["ok_per_s"]
     sixteen = {server: _phase(results, server, "sixteen", "ten") for server in ("before", "after")}
     change = long_after / long_before - 1 if long_before else float("nan")
     fast_enough = sixteen["after"]["ok_per_s"] >= 60 and sixteen["after"]["p99_ms"] < 500
     return [
-        f"| 2 s requests' p90 under the 30 s load / alone | 2x or less | {ratio('after'):.2f} | {ratio('before'):.2f} "
-        f"| {_met(ratio('after') <= 2)} |",
+        f"| 2 s requests' p90 under the 30 s load / alone | 2x or less | {ratios['after']:.2f} | {ratios['before']:.2f}"
+        f" | {_met(ratios['after'] <= 2)} |",
         f"| 30 s requests' answers/s beside the probe | at most 20% lost | {long_after:.2f} ({change:+.0%}) | "
         f"{long_before:.2f} | {_met(change >= -0.2)} |",
         f"| 16 clients x 10 s: answers/s, p99 | 60/s or more, p99 under 500 ms | {sixteen['after']['ok_per_s']:.1f}, "

@@ -183,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--repeats and --threads must be >= 1")
     if not schemes or set(schemes) - {"float32", "int8", "int4", "fp16"}:
         parser.error(f"--schemes: float32, int8, int4 or fp16, got {args.schemes!r}")
+    if args.json_out is not None and not args.json_out.parent.is_dir():
+        parser.error(f"--json-out: no folder {args.json_out.parent}")
     torch.set_num_threads(max(args.threads))
     with tempfile.TemporaryDirectory(prefix="released-speed-") as temporary:
         workdir = args.workdir or Path(temporary)
