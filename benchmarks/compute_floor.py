@@ -55,7 +55,7 @@ class GraphCall:
 
 
 def request_calls(manifest: dict) -> list[GraphCall]:
-    """The graph calls of one one-sentence request of a masked-family bundle (t2m/decoding/masked.py's loop)."""
+    """The graph calls of one one-sentence request of a masked-family bundle (t2m/families/masked/loop.py's loop)."""
     masked = manifest["masked"]
     guided = 2 if masked.get("unconditional_branch") and masked.get("guidance", 1.0) != 1.0 else 1
     residual = manifest["residual_layers"] - 1

@@ -1,9 +1,9 @@
 """MDM's joins (issue 26): the pelvis-velocity change at the joins of 3-sentence requests with and without the
-in-between pass (t2m.decoding.diffusion.join_windows), with benchmarks/join_smoothness.py's measure.
+in-between pass (t2m.families.diffusion.loop.join_windows), with benchmarks/join_smoothness.py's measure.
 
     PYTHONPATH=. .venv/bin/python benchmarks/diffusion_joins.py [--bundle DIR] [--seeds 20]
 
-Without --bundle it builds the tiny random-weight MDM (t2m.export.families.diffusion_random) with the exporter's
+Without --bundle it builds the tiny random-weight MDM (t2m.families.diffusion.random_bundle) with the exporter's
 default window (10 frames made anew a side after 10 known ones): random weights make no real motion, so the figures
 say what the pass does to a discontinuity between independently made sentences, not how a trained MDM's joins look.
 Each request is generated once per seed with the pass and once without it (the same draws for the sentences: the
@@ -38,13 +38,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         bundle = args.bundle
         if bundle is None:
-            from t2m.export.families.diffusion_random import build_random_diffusion_bundle
+            from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
 
             bundle = Path(scratch) / "mdm"
             build_random_diffusion_bundle(bundle, arch="mdm", join_frames=10, join_context=10,
                                           max_frames=196)
         engine = OnnxEngine.load(bundle, intra_op_threads=1)
-        codes: Any = engine.codes   # t2m.service.engine.diffusion_codes.DiffusionCodes
+        codes: Any = engine.codes   # t2m.families.diffusion.served.DiffusionCodes
         joined = codes.settings
         figures: dict[str, tuple[list[float], list[float]]] = {"with the pass": ([], []), "without": ([], [])}
         for seed in range(args.seeds):

@@ -41,7 +41,7 @@ def import_momask_release(workdir: Path, release_sizes: bool) -> Path:
         write_release,
     )
 
-    from t2m.export.importers.momask import import_momask
+    from t2m.families.masked.import_momask import import_momask
 
     sizes = RELEASE if release_sizes else SMALL
     root = workdir / "checkpoints" / "t2m"
@@ -60,7 +60,7 @@ def import_t2m_gpt_release(workdir: Path, release_sizes: bool) -> Path:
         write_release_files,
     )
 
-    from t2m.export.importers.t2m_gpt import import_t2m_gpt
+    from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt
 
     vq = release_vq_state(seed=1) if release_sizes else release_vq_state(width=64, code_dim=32, nb_code=64, seed=1)
     gpt = (release_gpt_state(seed=2) if release_sizes else

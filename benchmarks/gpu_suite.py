@@ -146,7 +146,7 @@ def _conds(batch: int, dim: int) -> np.ndarray:
 
 def gpt_generate(step: Any, dim: int, tokens: int, max_tokens: int, end_id: int) -> Generate:
     """B one-segment jobs of `tokens` codes with guidance 3, one GptCohort: codes [B, tokens]."""
-    from t2m.decoding.gpt import GptCohort, SamplingJob
+    from t2m.families.gpt.loop import GptCohort, SamplingJob
 
     def generate(batch: int) -> np.ndarray:
         jobs = [SamplingJob.of(cond[None], [tokens], max_tokens=max_tokens, guidance=3.0, rng=index)
@@ -157,8 +157,8 @@ def gpt_generate(step: Any, dim: int, tokens: int, max_tokens: int, end_id: int)
 
 def hifigpt_generate(temporal: Any, residual: Any, dim: int, steps: int, max_tokens: int) -> Generate:
     """B one-segment jobs of `steps` time steps with guidance 3, one HiFiGPTCohort: codes [B, steps, R]."""
-    from t2m.decoding.hifigpt import HiFiGPTCohort
     from t2m.decoding.lockstep import SamplingJob
+    from t2m.families.hifigpt.loop import HiFiGPTCohort
 
     def generate(batch: int) -> np.ndarray:
         jobs = [SamplingJob.of(cond[None], [steps], max_tokens=max_tokens, guidance=3.0, rng=index)
@@ -172,7 +172,7 @@ def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int
                     decoding: dict[str, Any]) -> Generate:
     """B one-segment jobs of `rows` token rows, `passes` mask steps, the model's guidance and top-k (`decoding`:
     MaskedJob's fields): maps [B, rows, C, R]."""
-    from t2m.decoding.masked import MaskedJob, sample_token_maps
+    from t2m.families.masked.loop import MaskedJob, sample_token_maps
 
     def generate(batch: int) -> np.ndarray:
         jobs = [MaskedJob(conds=cond[None], rows=[rows], rng=np.random.default_rng(index), steps=passes, **decoding)
@@ -231,8 +231,8 @@ def fixed_gpt(step_path: Path, config: Any, dim: int, tokens: int) -> Callable[[
 
 def torch_gpt(config: Any, dim: int, tokens: int) -> Callable[[torch.device], Generate]:
     def make(device: torch.device) -> Generate:
-        from t2m.model.networks.gpt import MotionGPT
-        from t2m.model.sampling.gpt import TorchGptStep
+        from t2m.families.gpt.network import MotionGPT
+        from t2m.families.gpt.sampling import TorchGptStep
 
         torch.manual_seed(0)
         gpt = MotionGPT(config).to(device).eval()
@@ -257,7 +257,7 @@ def embedded_gpt_case() -> Case:
 def embedded_hifigpt_case() -> Case:
     from benchmarks.host_loop import default_loop
     from t2m.bundles import DEFAULT_BUNDLE
-    from t2m.model.networks.hifigpt import HiFiGPTConfig
+    from t2m.families.hifigpt.network import HiFiGPTConfig
 
     manifest = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())
     h, dim, depth, steps = manifest["hifigpt"], manifest["text_encoder"]["dim"], manifest["residual_layers"], 25
@@ -275,8 +275,8 @@ def embedded_hifigpt_case() -> Case:
         return hifigpt_generate(temporal, residual, dim, steps, manifest["max_tokens"])
 
     def make_torch(device: torch.device) -> Generate:
-        from t2m.model.networks.hifigpt import HiFiGPT
-        from t2m.model.sampling.hifigpt import TorchResidualGptStep, TorchTemporalStep
+        from t2m.families.hifigpt.network import HiFiGPT
+        from t2m.families.hifigpt.sampling import TorchResidualGptStep, TorchTemporalStep
 
         torch.manual_seed(0)
         config = HiFiGPTConfig(codebook_size=manifest["codebook_size"], depth=depth, embed=h["n_head"] * h["head_dim"],
@@ -341,8 +341,8 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
     """T2M-GPT's release sizes (random weights), exported with the project's exporters."""
     from t2m.export.bench.models import RELEASE_GPT, RELEASE_VQ
     from t2m.export.graphs.decoder import export_decoder
-    from t2m.export.graphs.gpt import export_gpt_fixed_cache_step, export_gpt_step
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.families.gpt.export_graphs import export_gpt_fixed_cache_step, export_gpt_step
+    from t2m.families.gpt.network import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     config = (GPTConfig(codebook_size=64, embed=64, n_head=4, n_layer_base=1, n_layer_head=1, block_size=51,
@@ -371,7 +371,7 @@ def momask_release_decoding(codebook: int) -> dict[str, Any]:
     classes, the residual stage at temperature 1), as MaskedJob fields."""
     from dataclasses import asdict
 
-    from t2m.export.importers.momask import release_decoding
+    from t2m.families.masked.import_momask import release_decoding
 
     fields = asdict(release_decoding("t2m", codebook))
     return {name: fields[name] for name in ("guidance", "residual_guidance", "top_k", "residual_top_k",
@@ -380,9 +380,9 @@ def momask_release_decoding(codebook: int) -> dict[str, Any]:
 
 def release_momask_case(workdir: Path, tiny: bool) -> Case:
     """MoMask's release sizes (random weights): the masked and residual transformers and the RVQ decoder."""
-    from t2m.export.graphs.masked import export_joint_decoder, export_masked, export_residual
-    from t2m.model.networks.masked_transformer import MaskedTransformer
-    from t2m.model.networks.residual_transformer import ResidualTransformer
+    from t2m.families.masked.export_graphs import export_joint_decoder, export_masked, export_residual
+    from t2m.families.masked.masked_transformer import MaskedTransformer
+    from t2m.families.masked.residual_transformer import ResidualTransformer
     from t2m.model.networks.token_transformer import TokenTransformerConfig
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
@@ -405,7 +405,7 @@ def release_momask_case(workdir: Path, tiny: bool) -> Case:
                          paths["decoder"])
 
     def make_torch(device: torch.device) -> Generate:
-        from t2m.model.sampling.masked import TorchMaskedStep, TorchResidualStep
+        from t2m.families.masked.sampling import TorchMaskedStep, TorchResidualStep
 
         return masked_generate(TorchMaskedStep(masked.to(device), device),
                                TorchResidualStep(residual.to(device), device), dim, rows, passes,

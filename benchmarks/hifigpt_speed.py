@@ -1,7 +1,7 @@
 """T2M-HiFiGPT vs the 1-layer GPT at equal width and depth: ms per generated step and per 10 s motion (issue 16).
 
-Random weights, onnxruntime, the service's own loops and graphs (t2m.decoding.gpt over gpt_step.onnx;
-t2m.decoding.hifigpt over temporal_step.onnx + residual_step.onnx), guidance on (cond + null rows, batch 2), a 10 s
+Random weights, onnxruntime, the service's own loops and graphs (t2m.families.gpt.loop over gpt_step.onnx;
+t2m.families.hifigpt.loop over temporal_step.onnx + residual_step.onnx), guidance on (cond + null rows, batch 2), a 10 s
 motion of fixed length: the GPT makes 50 codes of 4 frames, HiFiGPT 25 time steps of 8 frames x R depths. The GPT
 has L layers; HiFiGPT L/2 temporal + L/2 residual ("equal width and depth"). Decoding (a random VQ decoder of the
 default width, 4 or 8 frames per code) is timed apart. Printed, never asserted; one run per row (median of --repeats).
@@ -24,17 +24,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from t2m.decoding.gpt import sample_codes
-from t2m.decoding.hifigpt import depth_loop, sample_code_rows
 from t2m.decoding.lockstep import SamplingJob
 from t2m.export.bench.machine import describe_machine
 from t2m.export.bench.models import median_ms
 from t2m.export.graphs.decoder import export_decoder
 from t2m.export.graphs.export import export_graph, ort_session
-from t2m.export.graphs.gpt import export_gpt_step
-from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step, onnx_steps
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.networks.hifigpt import HiFiGPT, HiFiGPTConfig
+from t2m.families.gpt.export_graphs import export_gpt_step
+from t2m.families.gpt.loop import sample_codes
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.hifigpt.export_graphs import export_residual_step, export_temporal_step, onnx_steps
+from t2m.families.hifigpt.loop import depth_loop, sample_code_rows
+from t2m.families.hifigpt.network import HiFiGPT, HiFiGPTConfig
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from t2m.service.engine.onnx_step import OnnxGptStep
 

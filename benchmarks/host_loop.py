@@ -50,14 +50,14 @@ class _Instant:
 
 
 class InstantGptStep(_Instant):
-    """t2m.decoding.gpt.GptStep answering logits [B, K+1] at once."""
+    """t2m.families.gpt.loop.GptStep answering logits [B, K+1] at once."""
 
     def __call__(self, cond, token, position, length, past):
         return self.values[: len(cond)], past
 
 
 class InstantTemporalStep(_Instant):
-    """t2m.decoding.hifigpt.TemporalStep answering (context, a low stop logit) at once."""
+    """t2m.families.hifigpt.loop.TemporalStep answering (context, a low stop logit) at once."""
 
     def __init__(self, rows: int, width: int, depth: int) -> None:
         super().__init__(rows, width, 1)
@@ -68,7 +68,7 @@ class InstantTemporalStep(_Instant):
 
 
 class InstantResidualStep(_Instant):
-    """t2m.decoding.hifigpt.ResidualGptStep answering logits [B, K] at once."""
+    """t2m.families.hifigpt.loop.ResidualGptStep answering logits [B, K] at once."""
 
     def __call__(self, context, code, depth, past):
         return self.values[: len(context)], past
@@ -92,7 +92,7 @@ def _map_logits(rows: int, tokens: int, classes: int) -> np.ndarray:
 
 
 class InstantMaskedStep(_Instant):
-    """t2m.decoding.masked.MaskedStep answering logits [B, T, C, K] at once."""
+    """t2m.families.masked.loop.MaskedStep answering logits [B, T, C, K] at once."""
 
     def __init__(self, rows: int, tokens: int, classes: int, mask_id: int) -> None:
         self.values, self.columns, self.mask_id = _map_logits(rows, tokens, classes), 1, mask_id
@@ -102,7 +102,7 @@ class InstantMaskedStep(_Instant):
 
 
 class InstantMaskedResidual(_Instant):
-    """t2m.decoding.masked.ResidualStep answering logits for a layer at once."""
+    """t2m.families.masked.loop.ResidualStep answering logits for a layer at once."""
 
     mask_id = None
 

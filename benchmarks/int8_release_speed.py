@@ -147,7 +147,7 @@ def ort_ms_per_token(path: Path, manifest: dict, guided: bool, tokens: int, repe
 def eager_ms_per_token(release: Path, manifest: dict, guided: bool, tokens: int,
                        threads: int) -> tuple[float, float]:
     """MotionGPT.forward on the whole prefix at every token (one timed run after a short warm-up)."""
-    from t2m.export.importers.t2m_gpt import load_release
+    from t2m.families.gpt.import_t2m_gpt import load_release
 
     torch.set_num_threads(threads)
     files = {name: release / name for name in ("net_last.pth", "net_best_fid.pth", "mean.npy", "std.npy")}

@@ -50,10 +50,10 @@ from momask_release_files import write_release as write_momask  # noqa: E402
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]  # noqa: E402
 
 from t2m.export.bench.bundles import run_bundle_bench  # noqa: E402
-from t2m.export.importers.diffusion_import import import_dip, import_mdm  # noqa: E402
-from t2m.export.importers.mogents import import_mogents  # noqa: E402
-from t2m.export.importers.momask import import_momask  # noqa: E402
-from t2m.export.importers.t2m_gpt import import_t2m_gpt  # noqa: E402
+from t2m.families.diffusion.importer import import_dip, import_mdm  # noqa: E402
+from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt  # noqa: E402
+from t2m.families.masked.import_mogents import import_mogents  # noqa: E402
+from t2m.families.masked.import_momask import import_momask  # noqa: E402
 from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE  # noqa: E402
 from tests.diffusion.distilbert_folder import write_distilbert_folder  # noqa: E402
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive  # noqa: E402
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         diffusion = {label.split(" ")[0]: bundle for label, bundle in bundles.items()
                      if label.split(" ")[0] in DIFFUSION}
         if diffusion:
-            from t2m.export.bench.diffusion_speed import run_diffusion_speed
+            from t2m.families.diffusion.bench import run_diffusion_speed
 
             print()
             run_diffusion_speed(diffusion, workdir / "int8", [int(n) for n in args.diffusion_threads.split(",")],

@@ -44,8 +44,8 @@ def bench_vq(width: int, batch: int, window: int, steps: int) -> tuple[float, fl
 
 
 def bench_gpt(embed: int, layers: int, heads: int, batch: int, steps: int) -> tuple[float, float, int]:
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
-    from t2m.model.training.train_gpt import next_token_loss
+    from t2m.families.gpt.network import GPTConfig, MotionGPT
+    from t2m.families.gpt.training import next_token_loss
 
     config = GPTConfig(codebook_size=512, embed=embed, n_head=heads, n_layer_base=layers - layers // 2,
                        n_layer_head=layers // 2, block_size=51, text_dim=384)

@@ -42,7 +42,7 @@ t2m export --family diffusion --diffusion-run "$RUNS/dip" --guidance 7.5 --int8 
 # 5. The probes (the engine's loop, any family) beside the other embedded models.
 python benchmarks/probes.py --bundle "$RUNS/dip_bundle" --seeds 5 --json-out "$RUNS/probes_dip.json"
 
-# 6. Table 1 and the stream table (t2m/export/diffusion_evaluation.py): the guidance chosen on the val split first,
+# 6. Table 1 and the stream table (t2m/families/diffusion/evaluation.py): the guidance chosen on the val split first,
 #    then the test split at the chosen scale.
 t2m eval --bundle "$RUNS/dip_bundle" --split val --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" \
   --guidance 1.5 2.5 4 6 8 --repeats 1 --mm-texts 10 --mm-repeats 3 --streams 30 --threads 2 \

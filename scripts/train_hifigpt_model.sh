@@ -69,7 +69,7 @@ python scripts/share_bundle_files.py      # the gpt and masked bundles link the 
 # 4. Evaluation (issue 16 item 5): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
 #    GPT's table, so the tables compare; crops are multiples of 8 frames (at most 192). The VQ reconstruction row's
 #    root-relative MPJPE is the residual VQ's (the goal: <= 15 mm; the 1-layer VQ: 42 mm). Generation runs the
-#    service's loop (t2m.decoding.hifigpt) at the crops' lengths, guidance 1 and 3 on code logits.
+#    service's loop (t2m.families.hifigpt.loop) at the crops' lengths, guidance 1 and 3 on code logits.
 #    Guidance 1 was left out to fit the session.
 #    0.3.0 (and the control): the same with --vq "$RUNS/rvq_causal" (--vq "$RUNS/rvq_refit"), --out
 #    "$RUNS/eval_hifigpt_causal.md" ("$RUNS/eval_hifigpt_refit.md"), --threads 1: 1.8 min each.

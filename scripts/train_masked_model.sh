@@ -60,7 +60,7 @@ t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" -
 
 # 5. Evaluation (issue 14 item 3): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
 #    GPT's table (scripts/train_gpt_model.sh; its evaluator run is needed here), so the two tables compare.
-#    Generation runs the service's loop (t2m.decoding.masked): 10 re-masking steps, masked-stage guidance 4 (the
+#    Generation runs the service's loop (t2m.families.masked.loop): 10 re-masking steps, masked-stage guidance 4 (the
 #    bundle's default; guidance 1 was left out to fit the session), residual stage guidance 5 (MoMask's), top-k 26 on
 #    both stages (MoMask's and MoGenTS's eval recipe: 10% of the codebook; 0.1.0 sampled from every code); --length
 #    adds rows at the length estimator's draws. The VQ reconstruction row's root-relative MPJPE is the joint VQ's.

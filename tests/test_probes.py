@@ -218,7 +218,7 @@ def test_probe_sentences_are_not_caption_templates():
 
 @pytest.fixture(scope="module")
 def random_bundle(tmp_path_factory) -> Path:
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("probe-bundle") / "tiny")
 

@@ -1,10 +1,10 @@
 """`t2m eval --bundle DIR`: Table 1 for exactly what a bundle serves, without its training runs (families that
 declare `evaluates_bundle`; each builds its Models with `load_bundle_eval_models`: here the lockstep families, GPT and
 T2M-HiFiGPT, whose served object samples jobs of exact lengths; the diffusion family's is
-t2m.export.diffusion_evaluation).
+t2m.families.diffusion.evaluation).
 
-The family's codes come from the service's own loop (the family's served object, e.g. t2m.service.engine.gpt_codes
-over t2m.decoding.gpt) stepping the bundle's step graphs, its text features from the bundle's tokenizer +
+The family's codes come from the service's own loop (the family's served object, e.g. t2m.families.gpt.served
+over t2m.families.gpt.loop) stepping the bundle's step graphs, its text features from the bundle's tokenizer +
 text_encoder.onnx, and the motions from its decoder.onnx, all loaded by the service's loader (hashes checked). So an
 int8 graph is measured as served. A bundle has no VQ encoder: the evaluation has no VQ-reconstruction row (and no
 "real crops' VQ codes" stream row).
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.decoding.gpt import SamplingJob
+from t2m.families.gpt.loop import SamplingJob
 from t2m.model.evaluation.evaluate import Models
 
 __all__ = ["BundleDecoder", "BundleLockstepFamily", "load_bundle_models", "lockstep_bundle_models"]

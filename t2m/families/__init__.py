@@ -1,3 +1,4 @@
-"""The model families t2m ships, one module each (gpt.py, masked.py, hifigpt.py), each holding one
-`t2m.bundle.family.ModelFamily` instance named FAMILY. The registry (t2m.bundle.family) finds them by module name;
-nothing else in t2m imports them. A new family is one more such module (or a plug-in package's entry point)."""
+"""The model families t2m ships, one folder each (gpt/, hifigpt/, masked/, diffusion/): its declaration, its served
+torch-free loop and its offline code (networks, training, export, importers, evaluation). Each folder's
+`__init__` exposes one `t2m.bundle.family.ModelFamily` instance named FAMILY; the registry (t2m.bundle.family) finds
+them by module name. A new family is one more such folder (or a plug-in package's entry point)."""

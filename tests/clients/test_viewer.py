@@ -45,7 +45,7 @@ def bundle_dir(tmp_path_factory) -> Path:
         return default
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
 

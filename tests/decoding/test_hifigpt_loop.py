@@ -1,4 +1,4 @@
-"""T2M-HiFiGPT's decoding loop (t2m.decoding.hifigpt) with scripted numpy steps: guidance on the stop logits (the
+"""T2M-HiFiGPT's decoding loop (t2m.families.hifigpt.loop) with scripted numpy steps: guidance on the stop logits (the
 paper's formula), the stop and target rules, guided codes fed to both rows, draws that do not depend on the batch,
 cancellation."""
 from __future__ import annotations
@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.decoding.hifigpt import sample_code_rows
 from t2m.decoding.lockstep import SamplingJob
 from t2m.decoding.tokens import draw_stops, stop_probability
+from t2m.families.hifigpt.loop import sample_code_rows
 
 K, R, E, DT = 6, 3, 4, 5
 

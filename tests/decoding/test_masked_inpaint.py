@@ -7,7 +7,7 @@ import pytest
 from test_masked_loop import COLUMNS, MASK, ScriptedMasked, ScriptedResidual, _job
 
 from t2m.decoding.inpaint import Inpaint
-from t2m.decoding.masked import remask_counts, sample_token_maps
+from t2m.families.masked.loop import remask_counts, sample_token_maps
 
 
 def _map(rows: int, fill_rows: range, columns=slice(None)) -> Inpaint:

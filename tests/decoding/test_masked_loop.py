@@ -1,4 +1,4 @@
-"""The masked family's decoding loop (t2m.decoding.masked): re-masking counts per step, freezing, guidance per
+"""The masked family's decoding loop (t2m.families.masked.loop): re-masking counts per step, freezing, guidance per
 stage, seeds that do not depend on the batch, residual layers, and the same tokens through modules and graphs."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from t2m.decoding.masked import MaskedJob, remask_counts, sample_branch_maps, sample_token_maps
+from t2m.families.masked.loop import MaskedJob, remask_counts, sample_branch_maps, sample_token_maps
 
 K, MASK, COLUMNS = 8, 8, 2
 
@@ -176,11 +176,11 @@ def test_seeded_sampling_is_the_same_through_modules_and_graphs(tmp_path):
     """Not only greedy: with the same seed the PyTorch modules and their ONNX graphs draw the same tokens."""
     torch = pytest.importorskip("torch")
     from t2m.export.graphs.export import ort_session
-    from t2m.export.graphs.masked import export_masked, export_residual
-    from t2m.model.networks.masked_transformer import MaskedTransformer
-    from t2m.model.networks.residual_transformer import ResidualTransformer
+    from t2m.families.masked.export_graphs import export_masked, export_residual
+    from t2m.families.masked.masked_transformer import MaskedTransformer
+    from t2m.families.masked.residual_transformer import ResidualTransformer
+    from t2m.families.masked.sampling import generate_token_maps
     from t2m.model.networks.token_transformer import TokenTransformerConfig
-    from t2m.model.sampling.masked import generate_token_maps
     from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
     torch.manual_seed(0)

@@ -12,15 +12,15 @@ import pytest
 import torch
 
 from t2m.bundle import BundleError, read_manifest
-from t2m.decoding.diffusion import (
+from t2m.families.diffusion.export import standing_prefix
+from t2m.families.diffusion.loop import (
     SegmentChain,
     cosine_schedule,
     crossfade_weights,
     join_windows,
     sample_segment_chains,
 )
-from t2m.export.families.diffusion import standing_prefix
-from t2m.export.families.diffusion_random import build_random_diffusion_bundle, random_statistics
+from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle, random_statistics
 from t2m.motion.features import features_to_joints
 
 torch.set_num_threads(1)
@@ -215,8 +215,8 @@ def test_the_standing_prefix_decodes_to_a_pose_that_does_not_move():
 def test_the_exporter_refuses_a_crossfade_longer_than_a_call_before_writing_anything(tmp_path):
     """A DiP cross-fade happens within one call: the exporter refuses 17 frames on 16-frame calls before it writes
     any graph (the text source is never asked to write)."""
-    from t2m.export.families.diffusion import export_diffusion_bundle
-    from t2m.export.families.diffusion_random import random_diffusion_model
+    from t2m.families.diffusion.export import export_diffusion_bundle
+    from t2m.families.diffusion.random_bundle import random_diffusion_model
 
     class Untouched:
         def write(self, out_dir):

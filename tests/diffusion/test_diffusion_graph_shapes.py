@@ -9,10 +9,10 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from t2m.decoding.diffusion import DiffusionJob, cosine_schedule, noise_from, sample
 from t2m.export.graphs.export import export_graph
-from t2m.model.networks.diffusion import MDM, DiffusionConfig
-from t2m.model.sampling.diffusion import TorchDenoiser
+from t2m.families.diffusion.loop import DiffusionJob, cosine_schedule, noise_from, sample
+from t2m.families.diffusion.network import MDM, DiffusionConfig
+from t2m.families.diffusion.sampling import TorchDenoiser
 
 torch.set_num_threads(1)
 

@@ -1,4 +1,4 @@
-"""MDM / DiP modules (t2m.model.networks.diffusion): the released state-dict layouts key by key (built on the meta
+"""MDM / DiP modules (t2m.families.diffusion.network): the released state-dict layouts key by key (built on the meta
 device, no memory), the hard-coded sizes, loading, and the forward's conventions on tiny random weights: condition
 token at position 0, zero text as the null condition, frame and text masks, DiP's prefix."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from t2m.model.networks.diffusion import MDM, DiffusionConfig, released_weights
+from t2m.families.diffusion.network import MDM, DiffusionConfig, released_weights
 
 torch.set_num_threads(1)
 

@@ -1,5 +1,6 @@
-"""The numpy loop (t2m.decoding.diffusion) over a module (TorchDenoiser) vs the independent PyTorch reference of the
-official loop (t2m.model.sampling.diffusion), same injected noise, tiny random weights: MDM with guidance and
+"""The numpy loop (t2m.families.diffusion.loop) over a module (TorchDenoiser) vs the independent PyTorch reference of
+the
+official loop (t2m.families.diffusion.sampling), same injected noise, tiny random weights: MDM with guidance and
 inpainting, DiP chains with a text per call; float-level agreement under batching of a mask_frames model."""
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.decoding.diffusion import DiffusionChain, DiffusionJob, cosine_schedule, noise_from, sample, sample_chains
-from t2m.model.networks.diffusion import MDM, DiffusionConfig
-from t2m.model.sampling.diffusion import TorchDenoiser, reference_chain, reference_sample, reference_tables
+from t2m.families.diffusion.loop import DiffusionChain, DiffusionJob, cosine_schedule, noise_from, sample, sample_chains
+from t2m.families.diffusion.network import MDM, DiffusionConfig
+from t2m.families.diffusion.sampling import TorchDenoiser, reference_chain, reference_sample, reference_tables
 
 torch.set_num_threads(1)
 

@@ -1,4 +1,4 @@
-"""The diffusion loop (t2m.decoding.diffusion) over scripted numpy denoisers: the step formula, guidance rows,
+"""The diffusion loop (t2m.families.diffusion.loop) over scripted numpy denoisers: the step formula, guidance rows,
 noise order and injection, inpainting (known values come out exactly), DiP chaining, determinism under batching.
 Every check has a control that shows it can fail."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.decoding.diffusion import (
+from t2m.families.diffusion.loop import (
     DiffusionChain,
     DiffusionJob,
     chain_calls,

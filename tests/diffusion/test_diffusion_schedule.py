@@ -1,4 +1,4 @@
-"""The cosine schedule of MDM/DiP (t2m.decoding.diffusion): closed forms, the numbers the facts doc states
+"""The cosine schedule of MDM/DiP (t2m.families.diffusion.loop): closed forms, the numbers the facts doc states
 (../shared/docs/diffusion-models.md §3.1), the posterior identities, and the float32 cast per step."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from t2m.decoding.diffusion import cosine_alpha_bar, cosine_betas, cosine_schedule
+from t2m.families.diffusion.loop import cosine_alpha_bar, cosine_betas, cosine_schedule
 
 STEPS = (10, 50, 1000)
 

@@ -1,4 +1,4 @@
-"""The diffusion family's text encoders (t2m.model.networks.diffusion_text, distilbert): MDM's CLIP path (22 ids =
+"""The diffusion family's text encoders (t2m.families.diffusion.text_encoders, distilbert): MDM's CLIP path (22 ids =
 20 BPE tokens + start/end, end token last; features equal at MDM's 77-padding; float16 vs float32 measured), DiP's
 DistilBERT token states (equal to transformers' DistilBertModel on random weights in the hub's folder layout; the
 uncased WordPiece equal to transformers' tokenizer), the token-state ONNX graph vs the module with other batch and
@@ -16,7 +16,8 @@ import torch
 
 from t2m.export.graphs.export import ort_session
 from t2m.export.kit.text_sources import mdm_clip_text_source, token_states_text_source
-from t2m.model.networks.diffusion_text import (
+from t2m.families.diffusion.distilbert import DistilBert, DistilBertConfig, build_wordpiece_tokenizer, load_distilbert
+from t2m.families.diffusion.text_encoders import (
     MDM_CLIP_CONTEXT,
     MdmClipEncoder,
     clip_encode_text_fp16,
@@ -24,7 +25,6 @@ from t2m.model.networks.diffusion_text import (
     mdm_clip_features,
     minilm_token_encoder,
 )
-from t2m.model.networks.distilbert import DistilBert, DistilBertConfig, build_wordpiece_tokenizer, load_distilbert
 from t2m.model.networks.text_encoders import ClipEncoder, minilm_model_dir
 from tests.diffusion.distilbert_folder import RELEASE, hub_state, tiny_vocab, write_distilbert_folder
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive

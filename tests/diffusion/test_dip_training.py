@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.families.diffusion_random import TEXT_DIM, TEXT_MAX_LENGTH, TinyTokenEncoder
 from t2m.export.kit.text_sources import token_states_text_source
-from t2m.model.networks.diffusion_text import TokenStateEncoder, cache_token_states
-from t2m.model.training import train_dip
+from t2m.families.diffusion import train_dip
+from t2m.families.diffusion.random_bundle import TEXT_DIM, TEXT_MAX_LENGTH, TinyTokenEncoder
+from t2m.families.diffusion.text_encoders import TokenStateEncoder, cache_token_states
 from tests.model.synthetic_motion_data import CAPTIONS, make_dataset
 
 torch.set_num_threads(1)
@@ -114,8 +114,8 @@ def test_a_resumed_run_repeats_the_uninterrupted_losses_exactly(setup):
 def test_the_export_takes_the_ema_weights_and_the_bundle_serves(setup):
     import onnxruntime as ort
 
-    from t2m.export.families.diffusion import export_dip_from_run
-    from t2m.export.graphs.diffusion import denoiser_inputs
+    from t2m.families.diffusion.export import export_dip_from_run
+    from t2m.families.diffusion.export_graphs import denoiser_inputs
     from t2m.model.training.checkpoint import load_model
     from t2m.service.engine.engine import OnnxEngine
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
@@ -165,7 +165,7 @@ def test_int8_text_export_measures_its_price_and_serves(setup):
     the manifest's quantization block, and the bundle verified and served."""
     import json
 
-    from t2m.export.families.diffusion import export_dip_from_run
+    from t2m.families.diffusion.export import export_dip_from_run
     from t2m.service.engine.engine import OnnxEngine
     from t2m.service.engine.types import GenerationRequest, SegmentRequest
 

@@ -19,7 +19,7 @@ def _one_torch_thread():
 @pytest.fixture(scope="session")
 def random_bundle(tmp_path_factory):
     """A tiny random bundle (length conditioning, guidance branch), built once for the session."""
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random")
 

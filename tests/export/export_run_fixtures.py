@@ -10,7 +10,7 @@ def make_runs(root, cond_drop: float = 0.1, length_conditioning: bool = True, te
     import numpy as np
     import torch
 
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.families.gpt.network import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
     from t2m.model.training.checkpoint import save_checkpoint
 

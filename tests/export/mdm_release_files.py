@@ -16,7 +16,7 @@ from pathlib import Path
 
 import torch
 
-from t2m.model.networks.gpt import sinusoid_table
+from t2m.families.gpt.network import sinusoid_table
 from tests.diffusion.distilbert_folder import write_distilbert_folder
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 

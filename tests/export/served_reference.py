@@ -1,7 +1,7 @@
 """The PyTorch reference of a served motion, for the importers' end-to-end tests.
 
 The modules an importer built (our PyTorch networks loaded from the release's files), run through the service's
-shared decoding loop (t2m.decoding, via t2m.model.sampling.gpt's and t2m.model.sampling.masked's steps) with the
+shared decoding loop (t2m.decoding, via t2m.families.gpt.sampling's and t2m.families.masked.sampling's steps) with the
 request's seed, decoded by the PyTorch VQ and turned into joints; the text features come from the PyTorch CLIP tower
 read from the same ViT-B-32.pt. `compare_served` runs the same request through the service's engine over the imported
 bundle: codes must be identical, text features, decoded features and joints equal to float rounding. Sampling at the
@@ -17,17 +17,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from t2m.decoding.masked import MaskedJob, sample_branch_maps, sample_token_maps
-from t2m.export.families.masked import MaskedDecoding
 from t2m.export.graphs.decoder import DecoderGraph
-from t2m.export.graphs.masked import map_decoder_graph
-from t2m.model.networks.length_estimator import LengthEstimator
-from t2m.model.networks.masked_transformer import MaskedTransformer
-from t2m.model.networks.residual_transformer import ResidualTransformer
-from t2m.model.sampling.gpt import sample_codes
-from t2m.model.sampling.masked import TorchMaskedStep, TorchResidualStep
+from t2m.families.gpt.sampling import sample_codes
+from t2m.families.masked.export import MaskedDecoding
+from t2m.families.masked.export_graphs import map_decoder_graph
+from t2m.families.masked.length_estimator import LengthEstimator
+from t2m.families.masked.loop import MaskedJob, sample_branch_maps, sample_token_maps
+from t2m.families.masked.masked_transformer import MaskedTransformer
+from t2m.families.masked.residual_transformer import ResidualTransformer
+from t2m.families.masked.sampling import TorchMaskedStep, TorchResidualStep
+from t2m.families.masked.served import draw_rows
 from t2m.motion.features import features_to_joints
-from t2m.service.engine.masked_codes import draw_rows
 from t2m.service.engine.types import GenerationRequest, SegmentRequest, tokens_for_duration
 
 Segments = Sequence[tuple[str, float | None]]
@@ -69,7 +69,7 @@ def _decode(decoder: torch.nn.Module, codes: list[np.ndarray], skeleton: str) ->
 
 def gpt_motion(models, conds: np.ndarray, segments: Segments, seed: int, guidance: float,
                skeleton: str = "smpl22") -> ReferenceMotion:
-    """T2M-GPT's release (t2m_gpt_import.ImportedModels): codes by t2m.model.sampling.gpt (End stops a free segment),
+    """T2M-GPT's release (t2m_gpt_import.ImportedModels): codes by t2m.families.gpt.sampling (End stops a free segment),
     the VQ decode x std + mean, joints."""
     targets = [None if d is None else tokens_for_duration(d) for _, d in segments]
     codes = sample_codes(models.gpt, conds, targets, guidance=guidance, rng=seed)
@@ -97,7 +97,8 @@ def masked_motion(generators: Sequence[Generator], decoding: MaskedDecoding, vq,
                   length: LengthEstimator | None, conds: np.ndarray, segments: Segments, seed: int, max_tokens: int,
                   skeleton: str = "smpl22") -> ReferenceMotion:
     """A masked release (MoMask: one generator; MoGenTS: ts then aux on the same rows and generator) at the release's
-    decoding settings: token maps by t2m.decoding.masked over the PyTorch modules, joined along the columns, decoded
+    decoding settings: token maps by t2m.families.masked.loop over the PyTorch modules, joined along the columns,
+    decoded
     once by the release's VQ."""
     rng = np.random.default_rng(seed)
     rows = masked_rows(length, conds, segments, rng, max_tokens)

@@ -8,9 +8,9 @@ import pytest
 
 from t2m.cli.main import main as t2m
 from t2m.export.bench.bundles import CASES, run_bundle_bench
-from t2m.export.families.gpt_random import build_random_bundle
-from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
-from t2m.export.families.masked_random import build_random_masked_bundle
+from t2m.families.gpt.random_bundle import build_random_bundle
+from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
+from t2m.families.masked.random_bundle import build_random_masked_bundle
 
 
 @pytest.fixture(scope="module")

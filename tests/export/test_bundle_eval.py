@@ -12,8 +12,8 @@ import torch
 
 from t2m.cli.main import main
 from t2m.export.evaluation import load_bundle_models
-from t2m.export.families.gpt_random import build_random_bundle
-from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
+from t2m.families.gpt.random_bundle import build_random_bundle
+from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
 from t2m.motion.features import features_to_joints
 from tests.model.synthetic_motion_data import make_dataset
 from tests.model.test_evaluation import HashTextEncoder

@@ -11,12 +11,12 @@ import onnx
 import pytest
 
 from t2m.bundle import BundleError
-from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.graphs.export import ort_session
 from t2m.export.graphs.text import tokenize
 from t2m.export.writing.bundle import prepare_out_dir, write_bundle
 from t2m.export.writing.verify import main as verify_main
 from t2m.export.writing.verify import verify_bundle
+from t2m.families.gpt.random_bundle import build_random_bundle
 
 
 def _copy(bundle: Path, tmp_path: Path) -> Path:
@@ -151,9 +151,9 @@ def test_a_failed_export_leaves_the_earlier_bundle_untouched(tmp_path):
 
 
 def _mismatched_export(out: Path) -> None:
-    from t2m.export.families.gpt import export_bundle
     from t2m.export.kit.text_sources import tiny_text_source
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.families.gpt.export import export_bundle
+    from t2m.families.gpt.network import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     export_bundle(out, vq=MotionVQVAE(VQConfig(width=16, code_dim=8, nb_code=32, depth=1)),

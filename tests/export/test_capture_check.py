@@ -12,11 +12,11 @@ import torch.nn.functional as F
 
 from t2m.export.graphs.capture_check import capture_blockers
 from t2m.export.graphs.export import export_graph
-from t2m.export.graphs.gpt import export_gpt_fixed_cache_step
-from t2m.export.graphs.masked import export_masked, export_residual
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.networks.masked_transformer import MaskedTransformer
-from t2m.model.networks.residual_transformer import ResidualTransformer
+from t2m.families.gpt.export_graphs import export_gpt_fixed_cache_step
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.masked.export_graphs import export_masked, export_residual
+from t2m.families.masked.masked_transformer import MaskedTransformer
+from t2m.families.masked.residual_transformer import ResidualTransformer
 from t2m.model.networks.token_transformer import TokenTransformerConfig, index_range
 
 

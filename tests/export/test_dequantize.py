@@ -10,11 +10,11 @@ import onnx
 import pytest
 
 from t2m.bundles import DEFAULT_BUNDLE
-from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.graphs.export import ort_session
 from t2m.export.writing.dequantize import dequantize_graph
 from t2m.export.writing.int8 import quantize_bundle
 from t2m.export.writing.quantize import quantize_graph
+from t2m.families.gpt.random_bundle import build_random_bundle
 
 INT8_OPS = {"MatMulInteger", "DynamicQuantizeLinear", "DequantizeLinear"}
 

@@ -11,9 +11,9 @@ import pytest
 import torch
 
 from t2m.cli.main import main
-from t2m.export.diffusion_evaluation import TokenStateFeatures, split_token_states
 from t2m.export.evaluation import load_bundle_models
-from t2m.export.families.diffusion_random import build_random_diffusion_bundle
+from t2m.families.diffusion.evaluation import TokenStateFeatures, split_token_states
+from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
 from t2m.model.evaluation.family import StreamFamily
 from tests.model.synthetic_motion_data import make_dataset
 from tests.model.test_evaluation import HashTextEncoder
@@ -54,7 +54,7 @@ def test_token_states_round_trip_through_one_array(diffusion_eval):
     arch, bundle, evaluator, _ = diffusion_eval
     if arch != "dip":
         pytest.skip("pooled text: the features are the text graph's own")
-    from t2m.service.engine.diffusion_codes import encode_token_states
+    from t2m.families.diffusion.served import encode_token_states
 
     models = load_bundle_models(evaluator, bundle)
     assert isinstance(models.family_text, TokenStateFeatures)

@@ -1,8 +1,8 @@
-"""`t2m import mdm` / `t2m import dip` end to end (t2m.export.importers.diffusion_import) on random-weight releases
+"""`t2m import mdm` / `t2m import dip` end to end (t2m.families.diffusion.importer) on random-weight releases
 in the official layout (mdm_release_files.py): import -> verified bundle -> served over HTTP / by the engine -> the
 ONNX denoiser against the imported PyTorch module inside a served run with the same injected noise; every refusal
 one line with exit 2. Small sizes here; at the released sizes (slow) a whole seeded sampling run of the served
-bundle against the PyTorch reference of the official loop (t2m.model.sampling.diffusion), MDM-50 and DiP."""
+bundle against the PyTorch reference of the official loop (t2m.families.diffusion.sampling), MDM-50 and DiP."""
 from __future__ import annotations
 
 import json
@@ -20,11 +20,11 @@ from mdm_release_files import (
 )
 
 from t2m.cli.main import main as t2m
-from t2m.decoding.diffusion import noise_from
-from t2m.export.importers.dip import load_dip_release
-from t2m.export.importers.mdm import load_mdm_release
-from t2m.model.sampling.diffusion import TorchDenoiser, reference_chain, reference_sample
-from t2m.service.engine.diffusion_codes import OnnxDenoiser
+from t2m.families.diffusion.import_dip import load_dip_release
+from t2m.families.diffusion.import_mdm import load_mdm_release
+from t2m.families.diffusion.loop import noise_from
+from t2m.families.diffusion.sampling import TorchDenoiser, reference_chain, reference_sample
+from t2m.families.diffusion.served import OnnxDenoiser
 from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE
 from tests.diffusion.distilbert_folder import hub_state, tiny_vocab, write_distilbert_folder
 from tests.shared_data import HUMANML3D_SAMPLE
@@ -183,7 +183,7 @@ def engine_request(segments):
 
 
 def test_dip_starts_from_the_standing_prefix(imported):
-    from t2m.export.families.diffusion import standing_prefix
+    from t2m.families.diffusion.export import standing_prefix
 
     bundle = imported["dip"][1]
     mean, std = np.load(HUMANML3D_SAMPLE / "Mean.npy"), np.load(HUMANML3D_SAMPLE / "Std.npy")
@@ -282,7 +282,7 @@ def noise_draws(seed: int, shapes: list[tuple[int, int]]) -> list[np.ndarray]:
 def test_released_sizes_a_whole_seeded_run_equals_the_reference_loop(name, tmp_path, capsys):
     """MDM-50 (17,880,327 parameters, CLIP at a small size) and DiP (26,424,583, EMA, DistilBERT at its released
     sizes, small vocabulary) imported by the CLI; one request through the served bundle (text graph, denoiser.onnx,
-    the numpy loop) vs t2m.model.sampling.diffusion's torch loop over the imported modules (texts from the PyTorch
+    the numpy loop) vs t2m.families.diffusion.sampling's torch loop over the imported modules (texts from the PyTorch
     encoders), the same injected noise: MDM one 6 s sentence (120 frames, 50 steps, guidance 2.5), DiP two
     sentences of 2 and 1.5 s (two calls of 10 steps, guidance 7.5, from the bundle's standing prefix)."""
     clip = small_clip_archive(tmp_path)

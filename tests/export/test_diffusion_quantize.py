@@ -22,8 +22,8 @@ import pytest
 from mdm_release_files import RELEASE_SIZES, make_release, small_clip_archive  # type: ignore[import-not-found]
 from quantized_copies import printed_json, run_t2m, with_doubled_weights  # type: ignore[import-not-found]
 
-from t2m.export.families.diffusion_random import build_random_diffusion_bundle
 from t2m.export.writing.bundle_parity import compare_bundles
+from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
 from tests.shared_data import HUMANML3D_SAMPLE
 
 OPS = {"int8": "MatMulInteger", "int4": "MatMulNBits"}

@@ -24,10 +24,10 @@ def _models(family: str) -> tuple[object, int]:
         torch.manual_seed(0)
         return MotionVQVAE(VQConfig(width=32, code_dim=16, nb_code=32, depth=1)).eval(), 2
     if family == "hifigpt":
-        from t2m.export.families.hifigpt_random import random_hifigpt_models
+        from t2m.families.hifigpt.random_bundle import random_hifigpt_models
 
         return random_hifigpt_models()["vq"], 3
-    from t2m.export.families.masked_random import random_masked_models
+    from t2m.families.masked.random_bundle import random_masked_models
 
     return random_masked_models(variant=family.split("-")[1])["vq"], 4
 
@@ -50,13 +50,13 @@ def test_encoder_codes_are_the_vq_encode(family: str, tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def hifigpt_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
+    from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
 
     return build_random_hifigpt_bundle(tmp_path_factory.mktemp("hifigpt") / "bundle", check_parity=True)
 
 
 def test_random_bundles_list_a_checked_encoder(random_bundle: Path, hifigpt_bundle: Path, tmp_path: Path) -> None:
-    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     masked = build_random_masked_bundle(tmp_path / "masked", max_tokens=20)
     for bundle in (random_bundle, masked, hifigpt_bundle):
@@ -82,7 +82,7 @@ def test_an_encoder_of_the_wrong_layout_is_refused(random_bundle: Path, hifigpt_
 
 
 def test_a_bundle_without_an_encoder_is_valid(tmp_path: Path) -> None:
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     bundle = build_random_bundle(tmp_path / "plain", encoder=False)
     assert ENCODER_GRAPH not in verify_bundle(bundle)["files"]

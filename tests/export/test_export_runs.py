@@ -7,8 +7,8 @@ import json
 from export_run_fixtures import make_runs
 
 from t2m.cli.main import main as t2m
-from t2m.export.families.gpt import export_from_runs
 from t2m.export.writing.verify import verify_bundle
+from t2m.families.gpt.export import export_from_runs
 
 
 def test_export_from_runs_writes_the_contract_manifest(exported_runs):

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.families.hifigpt_random import random_hifigpt_models
 from t2m.export.writing.verify import verify_bundle
+from t2m.families.hifigpt.random_bundle import random_hifigpt_models
 
 torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")
 def graphs(tmp_path_factory) -> tuple[dict, Path]:
-    from t2m.export.graphs.hifigpt import export_residual_step, export_temporal_step
+    from t2m.families.hifigpt.export_graphs import export_residual_step, export_temporal_step
 
     models = random_hifigpt_models(depth=4, shared_codebook=False, seed=1)
     out = tmp_path_factory.mktemp("graphs")
@@ -29,7 +29,7 @@ def graphs(tmp_path_factory) -> tuple[dict, Path]:
 
 @pytest.mark.parametrize("guidance", [1.0, 3.0])
 def test_a_seeded_guided_rollout_is_identical_through_the_graphs(graphs, guidance):
-    from t2m.export.graphs.hifigpt import rollout_parity
+    from t2m.families.hifigpt.export_graphs import rollout_parity
 
     models, out = graphs
     parity = rollout_parity(models["model"], out / "temporal_step.onnx", out / "residual_step.onnx", guidance,
@@ -40,8 +40,8 @@ def test_a_seeded_guided_rollout_is_identical_through_the_graphs(graphs, guidanc
 
 
 def test_the_step_graphs_take_any_batch_and_cache_length(graphs):
-    from t2m.export.graphs.hifigpt import onnx_steps
-    from t2m.model.sampling.hifigpt import TorchResidualGptStep, TorchTemporalStep
+    from t2m.families.hifigpt.export_graphs import onnx_steps
+    from t2m.families.hifigpt.sampling import TorchResidualGptStep, TorchTemporalStep
 
     models, out = graphs
     model = models["model"]

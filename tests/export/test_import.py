@@ -17,18 +17,18 @@ from served_reference import clip_features, compare_served, gpt_motion, within_r
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 from t2m.cli.main import main as t2m
-from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.graphs.export import ort_session
 from t2m.export.importers.kit import strip_prefix
-from t2m.export.importers.t2m_gpt import (
+from t2m.export.kit.parity import ort_greedy_rollout
+from t2m.families.gpt.import_t2m_gpt import (
     CLIP_REQUIRED,
     import_t2m_gpt,
     infer_gpt_config,
     infer_vq_config,
     load_release,
 )
-from t2m.export.kit.parity import ort_greedy_rollout
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.random_bundle import build_random_bundle
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
 
@@ -215,7 +215,7 @@ def test_import_with_openais_clip_file_via_cli(clip_import, small_release, small
 
 
 def test_a_served_motion_equals_the_pytorch_reference_decode(clip_import, small_release, small_clip_archive):
-    """The engine over the imported bundle vs the release's modules (load_release) through t2m.model.sampling.gpt
+    """The engine over the imported bundle vs the release's modules (load_release) through t2m.families.gpt.sampling
     with the same seed, the PyTorch VQ decode and joints; text from the PyTorch CLIP tower of the same file. Sampled
     over the whole codebook at the release's guidance 1 (not greedy): two fixed segments and one ended by End (or 50
     codes)."""

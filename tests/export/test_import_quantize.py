@@ -35,9 +35,9 @@ from quantized_copies import printed_json, run_t2m, with_doubled_weights  # type
 from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]
 
 from t2m.cli.main import main as t2m
-from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.writing.bundle_parity import compare_bundles
 from t2m.export.writing.int8 import quantized_graphs
+from t2m.families.gpt.random_bundle import build_random_bundle
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
 IMPORTERS = ("t2m-gpt", "momask", "mogents")

@@ -27,7 +27,7 @@ def one_thread():
 
 @pytest.fixture(scope="module")
 def masked_2d(tmp_path_factory) -> Path:
-    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "2d", check_parity=True)
 
@@ -35,7 +35,7 @@ def masked_2d(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def masked_1d(tmp_path_factory) -> Path:
     """MoMask's variant: one column, a single-layer VQ (no residual.onnx), no length estimator."""
-    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "1d", variant="1d", residual_layers=1,
                                       length_estimator=False)
@@ -83,8 +83,8 @@ def test_the_1d_bundle_has_one_column_and_no_residual_or_length_graph(masked_1d)
 
 
 def test_the_1d_residual_variant_decodes_one_column_maps(tmp_path):
-    from t2m.export.families.masked_random import build_random_masked_bundle
     from t2m.export.graphs.export import ort_session
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     bundle = build_random_masked_bundle(tmp_path / "b", variant="1d", residual_layers=2, length_estimator=False,
                                         check_parity=True)
@@ -159,10 +159,10 @@ def test_a_wrong_decoder_graph_is_named(masked_2d, tmp_path):
 @pytest.fixture(scope="module")
 def masked_runs(tmp_path_factory) -> dict[str, Path]:
     """Random tiny joint_vq / masked / residual / length runs saved as checkpoints (no training: export only reads)."""
+    from t2m.families.masked.length_estimator import LengthEstimator, LengthEstimatorConfig
+    from t2m.families.masked.masked_transformer import MaskedTransformer
+    from t2m.families.masked.residual_transformer import ResidualTransformer
     from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
-    from t2m.model.networks.length_estimator import LengthEstimator, LengthEstimatorConfig
-    from t2m.model.networks.masked_transformer import MaskedTransformer
-    from t2m.model.networks.residual_transformer import ResidualTransformer
     from t2m.model.networks.token_transformer import TokenTransformerConfig
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
     from t2m.model.training.checkpoint import save_checkpoint

@@ -32,10 +32,10 @@ from momask_reference import (
 from served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 from t2m.cli.main import main as t2m
-from t2m.decoding.masked import remask_counts
 from t2m.export.graphs.export import ort_session
-from t2m.export.importers.mogents import import_mogents, load_mogents, release_decoding
-from t2m.export.importers.mogents_files import locate_release
+from t2m.families.masked.import_mogents import import_mogents, load_mogents, release_decoding
+from t2m.families.masked.loop import remask_counts
+from t2m.families.masked.mogents_files import locate_release
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
@@ -362,7 +362,7 @@ def test_the_service_gives_mogents_token_maps_and_motion(release, imported):
 def test_a_drawn_mask_id_clips_the_motions_map(tmp_path):
     """A release whose 2D residual model prefers the mask id at layer 2: MoGenTS clips the motion's map to
     [0, K - 1] (so layer 2 holds K - 1), and the loop over our modules does the same."""
-    from t2m.model.sampling.masked import generate_token_maps
+    from t2m.families.masked.sampling import generate_token_maps
 
     release = make_release(tmp_path, length=False)
     s, states = release.sizes, release.states

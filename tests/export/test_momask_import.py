@@ -29,11 +29,11 @@ from momask_release_files import RELEASE, SMALL, MomaskSizes, ReleaseStates, rel
 from served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 from t2m.cli.main import main as t2m
-from t2m.decoding.masked import remask_counts
 from t2m.export.graphs.export import ort_session
-from t2m.export.importers.momask import import_momask, load_momask, release_decoding, release_top_k
-from t2m.export.importers.momask_files import kit_fps_note, locate_release
-from t2m.model.sampling.masked import generate_token_maps
+from t2m.families.masked.import_momask import import_momask, load_momask, release_decoding, release_top_k
+from t2m.families.masked.loop import remask_counts
+from t2m.families.masked.momask_files import kit_fps_note, locate_release
+from t2m.families.masked.sampling import generate_token_maps
 from t2m.service.engine.types import GenerationRequest, SegmentRequest
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.export.graphs.masked import (
+from t2m.families.masked.export_graphs import (
     decode_parity,
     export_joint_decoder,
     export_masked,
@@ -15,9 +15,9 @@ from t2m.export.graphs.masked import (
     joint_decoder_parity,
     transformer_parity,
 )
+from t2m.families.masked.masked_transformer import MaskedTransformer
+from t2m.families.masked.residual_transformer import ResidualTransformer
 from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
-from t2m.model.networks.masked_transformer import MaskedTransformer
-from t2m.model.networks.residual_transformer import ResidualTransformer
 from t2m.model.networks.token_transformer import TokenTransformerConfig
 
 TOLERANCE = 1e-4

@@ -10,9 +10,7 @@ import onnx
 import pytest
 import torch
 
-from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.graphs.export import ort_session
-from t2m.export.graphs.gpt import export_gpt_step
 from t2m.export.kit.parity import ort_greedy_rollout
 from t2m.export.writing.int8 import quantize_bundle_gpt
 from t2m.export.writing.quantize import (
@@ -22,7 +20,9 @@ from t2m.export.writing.quantize import (
     quantize_graph_int4,
     text_int8_report,
 )
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.families.gpt.export_graphs import export_gpt_step
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.random_bundle import build_random_bundle
 from tests.export.non_vnni import ReferenceSession
 
 

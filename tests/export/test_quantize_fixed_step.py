@@ -11,10 +11,10 @@ import numpy as np
 import onnx
 import pytest
 
-from t2m.export.families.gpt_random import build_random_bundle
 from t2m.export.graphs.capture_check import capture_blockers
 from t2m.export.writing.bundle_parity import compare_bundles
 from t2m.export.writing.int8 import quantize_bundle
+from t2m.families.gpt.random_bundle import build_random_bundle
 
 FIXED = "gpt_step_fixed.onnx"
 

@@ -59,7 +59,7 @@ schema = schemathesis.openapi.from_dict(_published_schema())
 def live_url(tmp_path_factory):
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     bundle = build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
     # a body limit above the schema's largest upload (120 s x 120 fps of joints): a schema-violating body reaches

@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 def tiny_bundle(tmp_path_factory) -> Path:
     torch = pytest.importorskip("torch")
     torch.set_num_threads(1)
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "tiny")
 

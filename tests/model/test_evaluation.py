@@ -57,8 +57,8 @@ def fast_text(request, monkeypatch):
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory) -> dict[str, Path]:
     """A 12-clip dataset whose test split lists every clip, and random tiny VQ / GPT / evaluator checkpoints."""
+    from t2m.families.gpt.network import GPTConfig, MotionGPT
     from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
     from t2m.model.training.checkpoint import save_checkpoint
 

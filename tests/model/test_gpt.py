@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from t2m.model.networks.gpt import GPTConfig, MotionGPT, sinusoid_table
+from t2m.families.gpt.network import GPTConfig, MotionGPT, sinusoid_table
 
 torch.set_num_threads(1)
 

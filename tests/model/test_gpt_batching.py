@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import torch
 
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.training import next_token_loss
 from t2m.model.data.datasets import LengthBucketSampler, trim_padding
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.training.train_gpt import next_token_loss
 
 torch.set_num_threads(1)
 

@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from t2m.cli.main import main
-from t2m.model.networks.hifigpt import HiFiGPT, HiFiGPTConfig, vq_codebooks, vq_fields
+from t2m.families.hifigpt.network import HiFiGPT, HiFiGPTConfig, vq_codebooks, vq_fields
+from t2m.families.hifigpt.sampling import sample_code_maps
+from t2m.families.hifigpt.training import corrupt_steps, hifigpt_loss
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
-from t2m.model.sampling.hifigpt import sample_code_maps
 from t2m.model.training.checkpoint import load_model, save_checkpoint
-from t2m.model.training.train_hifigpt import corrupt_steps, hifigpt_loss
 
 torch.set_num_threads(1)
 

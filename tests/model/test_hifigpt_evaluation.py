@@ -1,6 +1,6 @@
 """`t2m eval --hifigpt` end to end: a residual VQ at 8 frames per code and a double-tier GPT trained for 3 steps on
 the tiny dataset, evaluated with the same command and evaluator as the other families: crops are multiples of 8
-frames, generation goes through the shared loop (t2m.decoding.hifigpt), streams concatenate the code maps."""
+frames, generation goes through the shared loop (t2m.families.hifigpt.loop), streams concatenate the code maps."""
 from __future__ import annotations
 
 import json
@@ -45,7 +45,7 @@ def runs(tmp_path) -> dict[str, Path]:
 
 
 def test_hifigpt_eval_writes_every_row_through_the_shared_loop(runs, tmp_path, monkeypatch):
-    import t2m.model.sampling.hifigpt as sampling
+    import t2m.families.hifigpt.sampling as sampling
 
     calls: list[list[int | None]] = []
     real = sampling.sample_code_rows

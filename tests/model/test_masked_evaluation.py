@@ -73,9 +73,10 @@ def fast_text(monkeypatch):
 
 @pytest.fixture
 def loop_calls(monkeypatch) -> list[int]:
-    """Segments per call of the shared numpy loop (t2m.decoding.masked.sample_token_maps, as the PyTorch entry point
+    """Segments per call of the shared numpy loop (t2m.families.masked.loop.sample_token_maps, as the PyTorch entry
+    point
     imports it); the GPT sampler must not run at all."""
-    import t2m.model.sampling.masked as masked_sampling
+    import t2m.families.masked.sampling as masked_sampling
 
     calls: list[int] = []
     real = masked_sampling.sample_token_maps
@@ -88,7 +89,7 @@ def loop_calls(monkeypatch) -> list[int]:
         raise AssertionError("the masked family must not sample with the GPT")
 
     monkeypatch.setattr(masked_sampling, "sample_token_maps", counted)
-    monkeypatch.setattr("t2m.model.sampling.gpt.sample_codes", no_gpt)
+    monkeypatch.setattr("t2m.families.gpt.sampling.sample_codes", no_gpt)
     return calls
 
 
@@ -130,6 +131,7 @@ def test_masked_eval_writes_every_row_through_the_shared_loop(masked_runs, tmp_p
 def test_reconstruction_row_is_the_joint_vqs_with_every_layer(masked_runs, fast_text):
     """The VQ reconstruction row's root-relative MPJPE equals the joint VQ's own encode -> decode of the same crops
     (all residual layers), computed here without the evaluation's helpers."""
+    from t2m.families.masked.evaluation import MaskedSettings
     from t2m.model.data.motion_data import MotionDirectory
     from t2m.model.evaluation.evaluate import (
         EvalOptions,
@@ -140,7 +142,6 @@ def test_reconstruction_row_is_the_joint_vqs_with_every_layer(masked_runs, fast_
         read_clips,
         reconstruct_codes,
     )
-    from t2m.model.evaluation.masked_family import MaskedSettings
     from t2m.model.networks.joint_vqvae import JointVQVAE
 
     reader = MotionDirectory(masked_runs["data"], "test")
@@ -202,8 +203,8 @@ def test_stream_maps_are_generated_per_segment_concatenated_along_time_and_decod
     """T2LM's streams as the service makes them: each segment's map for its own text and rows, the maps of a stream
     concatenated along time, one decode per stream."""
     import t2m.model.evaluation.evaluate as evaluation
+    from t2m.families.masked.evaluation import MaskedSettings
     from t2m.model.evaluation.evaluate import EvalOptions, load_masked_models, multi_sentence
-    from t2m.model.evaluation.masked_family import MaskedSettings
 
     reader_mean, reader_std = np.zeros(263, np.float32), np.ones(263, np.float32)
     models = load_masked_models(masked_runs["evaluator"], masked_runs["joint_vq"], masked_runs["masked"],
@@ -238,8 +239,8 @@ def test_stream_maps_are_generated_per_segment_concatenated_along_time_and_decod
 
 
 def test_masked_batches_go_by_length_and_come_back_in_row_order(masked_runs, loop_calls):
+    from t2m.families.masked.evaluation import MaskedSettings
     from t2m.model.evaluation.evaluate import EvalOptions, load_masked_models, sample
-    from t2m.model.evaluation.masked_family import MaskedSettings
 
     models = load_masked_models(masked_runs["evaluator"], masked_runs["joint_vq"], masked_runs["masked"],
                                 masked_runs["residual"], None, MaskedSettings(steps=2), np.zeros(263, np.float32),

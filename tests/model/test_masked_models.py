@@ -10,6 +10,16 @@ import pytest
 import torch
 from synthetic_motion_data import _source_motion
 
+from t2m.families.masked.length_estimator import LengthEstimator, LengthEstimatorConfig, sample_length
+from t2m.families.masked.masked_transformer import MaskedTransformer
+from t2m.families.masked.masking import (
+    bert_replace,
+    remask_counts,
+    residual_layer_schedule,
+    temporal_spatial_mask,
+)
+from t2m.families.masked.residual_transformer import ResidualTransformer
+from t2m.families.masked.sampling import generate_token_maps
 from t2m.model.networks.joint_layout import (
     features_to_joint_map,
     joint_map_index,
@@ -17,17 +27,7 @@ from t2m.model.networks.joint_layout import (
     joints_for_dim,
 )
 from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
-from t2m.model.networks.length_estimator import LengthEstimator, LengthEstimatorConfig, sample_length
-from t2m.model.networks.masked_transformer import MaskedTransformer
-from t2m.model.networks.residual_transformer import ResidualTransformer
 from t2m.model.networks.token_transformer import TokenTransformerConfig
-from t2m.model.sampling.masked import generate_token_maps
-from t2m.model.training.masking import (
-    bert_replace,
-    remask_counts,
-    residual_layer_schedule,
-    temporal_spatial_mask,
-)
 from t2m.model.training.train_vq import vq_loss
 
 torch.set_num_threads(1)

@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from t2m.cli.main import main
+from t2m.families.masked.length_estimator import LengthEstimator, LengthEstimatorConfig
+from t2m.families.masked.masked_transformer import MaskedTransformer
+from t2m.families.masked.residual_transformer import ResidualTransformer
 from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
-from t2m.model.networks.length_estimator import LengthEstimator, LengthEstimatorConfig
-from t2m.model.networks.masked_transformer import MaskedTransformer
-from t2m.model.networks.residual_transformer import ResidualTransformer
 from t2m.model.networks.token_transformer import TokenTransformerConfig
 from t2m.model.training.checkpoint import load_model, save_checkpoint
 from t2m.model.training.token_models import noisy_condition

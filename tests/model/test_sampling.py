@@ -1,4 +1,5 @@
-"""The PyTorch reference sampler (t2m.model.sampling.gpt over t2m.decoding.gpt): the End rule, greedy parity with the
+"""The PyTorch reference sampler (t2m.families.gpt.sampling over t2m.families.gpt.loop): the End rule, greedy parity
+with the
 full forward, top-k, seeds."""
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import pytest
 import torch
 
 from t2m.decoding.tokens import guided_logits, sample_tokens
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
-from t2m.model.sampling.gpt import sample_codes
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.sampling import sample_codes
 
 torch.set_num_threads(1)
 K = 12

@@ -25,7 +25,7 @@ def random_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny random-weight bundle from export.bundle (codebook 32, max_tokens 50, length conditioning, guidance)."""
     import torch
 
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     torch.set_num_threads(1)
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random", seed=0)
@@ -37,7 +37,7 @@ def second_bundle(tmp_path_factory: pytest.TempPathFactory) -> Path:
     max_tokens 25 (5 s segments), default guidance 2."""
     import torch
 
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     torch.set_num_threads(1)
     return build_random_bundle(tmp_path_factory.mktemp("bundle") / "random-b", seed=1, name="t2m-random-b",
@@ -55,7 +55,7 @@ def masked_bundle(tmp_path_factory: pytest.TempPathFactory, masked_build: dict) 
     """A tiny random masked-family bundle (MoGenTS's 2D joint tokens, two residual layers, a length estimator)."""
     import torch
 
-    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     torch.set_num_threads(1)
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "2d", **masked_build)
@@ -72,7 +72,7 @@ def hifigpt_bundle(tmp_path_factory: pytest.TempPathFactory, hifigpt_build: dict
     """A tiny random T2M-HiFiGPT bundle (three code depths, 8 frames per step), its parity checked."""
     import torch
 
-    from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
+    from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
 
     torch.set_num_threads(1)
     return build_random_hifigpt_bundle(tmp_path_factory.mktemp("hifigpt") / "bundle", check_parity=True,

@@ -9,9 +9,9 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 
-from t2m.decoding.gpt import GptCohort
-from t2m.decoding.hifigpt import HiFiGPTCohort
 from t2m.decoding.lockstep import SamplingJob, keep_rows
+from t2m.families.gpt.loop import GptCohort
+from t2m.families.hifigpt.loop import HiFiGPTCohort
 from t2m.service.engine.bound_step import KEEP_ROWS_GRAPH, BoundGptStep, BoundTemporalStep, host_cache
 from t2m.service.engine.execution import Execution
 from t2m.service.engine.onnx_step import OnnxGptStep, OnnxTemporalStep

@@ -65,7 +65,7 @@ def test_families_with_a_growing_cache_replay_nothing(default_model, gpt_model):
 @pytest.fixture(scope="module")
 def fixed_step_bundle(tmp_path_factory):
     """A GPT-family bundle that carries gpt_step_fixed.onnx (`t2m import t2m-gpt --cuda-graph-step`)."""
-    from t2m.export.families.gpt_random import build_random_bundle
+    from t2m.families.gpt.random_bundle import build_random_bundle
 
     return build_random_bundle(tmp_path_factory.mktemp("fixed") / "gpt", block_size=40, fixed_step=True)
 

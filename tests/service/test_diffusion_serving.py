@@ -10,7 +10,7 @@ import pytest
 import torch
 from served_stream import check_whole_and_streamed
 
-from t2m.export.families.diffusion_random import build_random_diffusion_bundle, random_diffusion_model
+from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle, random_diffusion_model
 
 torch.set_num_threads(1)
 
@@ -82,8 +82,8 @@ def test_a_bad_request_is_a_422_naming_the_field(bundles, make_client, body, fie
 def test_the_onnx_denoiser_matches_the_module_inside_a_served_run(engines, arch):
     """The same served sampling run (texts from the bundle's text graph, joins, chains) over denoiser.onnx and over
     the PyTorch module the bundle was exported from, with the same injected noise."""
-    from t2m.decoding.diffusion import noise_from
-    from t2m.model.sampling.diffusion import TorchDenoiser
+    from t2m.families.diffusion.loop import noise_from
+    from t2m.families.diffusion.sampling import TorchDenoiser
 
     engine = engines[arch]
     codes = engine.codes
@@ -125,7 +125,7 @@ def test_a_request_is_the_same_alone_and_batched_with_others(engines, name):
 def test_the_join_window_remakes_only_the_frames_around_each_join(engines):
     """MDM's joins: the same seed with and without the in-between pass: the sentences' frames are equal outside
     the windows' made part, and the known frames come out exactly."""
-    from t2m.decoding.diffusion import join_windows
+    from t2m.families.diffusion.loop import join_windows
 
     engine = engines["mdm"]
     codes = engine.codes

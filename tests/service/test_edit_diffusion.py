@@ -21,9 +21,9 @@ import pytest
 import torch
 from test_edit import assert_rigidly_moved
 
-from t2m.decoding.diffusion import numbered_join_windows
-from t2m.export.families.diffusion_random import build_random_diffusion_bundle
-from t2m.service.diffusion_edits import edit_recipe, replay
+from t2m.families.diffusion.edits import edit_recipe, replay
+from t2m.families.diffusion.loop import numbered_join_windows
+from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
 from t2m.service.editing import EditError
 from t2m.service.engine.engine import OnnxEngine
 from t2m.service.engine.types import GenerationRequest, SegmentRequest

@@ -192,7 +192,7 @@ def test_masked_edits_out_of_range_name_the_field(engine, original, change, loc,
 
 @pytest.fixture(scope="module")
 def masked_1d_bundle_path(tmp_path_factory) -> Path:
-    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "1d", variant="1d", residual_layers=2,
                                       length_estimator=False, name="t2m-random-masked-1d")

@@ -11,12 +11,12 @@ import onnx
 import pytest
 import torch
 
-from t2m.decoding.gpt import GptCohort
 from t2m.decoding.lockstep import SamplingJob
 from t2m.export.graphs.export import ort_session
-from t2m.export.graphs.gpt import export_gpt_fixed_cache_step, export_gpt_step
-from t2m.model.networks.fixed_cache import empty_fixed_cache, fixed_cache_step
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.families.gpt.export_graphs import export_gpt_fixed_cache_step, export_gpt_step
+from t2m.families.gpt.fixed_cache import empty_fixed_cache, fixed_cache_step
+from t2m.families.gpt.loop import GptCohort
+from t2m.families.gpt.network import GPTConfig, MotionGPT
 from t2m.service.engine.graphed_step import FixedCacheGptStep, GraphedSession, graph_session
 from t2m.service.engine.onnx_step import OnnxGptStep
 

@@ -81,10 +81,10 @@ def test_a_stream_is_one_decode_of_the_concatenated_code_maps(engine, decoded):
 
 
 def test_served_codes_equal_the_pytorch_reference(engine, decoded, hifigpt_build):
-    from t2m.decoding.hifigpt import sample_code_rows
     from t2m.decoding.lockstep import SamplingJob
-    from t2m.export.families.hifigpt_random import random_hifigpt_models
-    from t2m.model.sampling.hifigpt import TorchResidualGptStep, TorchTemporalStep
+    from t2m.families.hifigpt.loop import sample_code_rows
+    from t2m.families.hifigpt.random_bundle import random_hifigpt_models
+    from t2m.families.hifigpt.sampling import TorchResidualGptStep, TorchTemporalStep
 
     segments = [*STREAM[:2], ("a person bows", None)]
     engine.generate(_request(segments, seed=5, guidance=2.5, top_k=6))

@@ -1,5 +1,6 @@
 """The service serving a masked-family bundle (MoMask / MoGenTS token maps): the loader accepts it, the engine samples
-every segment's map through t2m.decoding.masked with the request's own generator, concatenates the maps along time and
+every segment's map through t2m.families.masked.loop with the request's own generator, concatenates the maps along time
+and
 decodes once; the API answers json/bvh/glb as for the GPT; tokens equal the PyTorch reference for a fixed seed."""
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ STREAM = [("a person walks forward", 1.0), ("a person waves with the right hand"
 @pytest.fixture(scope="module")
 def masked_1d_bundle(tmp_path_factory) -> Path:
     """MoMask's variant without a length estimator."""
-    from t2m.export.families.masked_random import build_random_masked_bundle
+    from t2m.families.masked.random_bundle import build_random_masked_bundle
 
     return build_random_masked_bundle(tmp_path_factory.mktemp("masked") / "1d", variant="1d", residual_layers=2,
                                       length_estimator=False)
@@ -80,8 +81,8 @@ def test_the_same_seed_gives_the_same_motion_alone_or_batched(engine):
 
 
 def test_served_tokens_equal_the_pytorch_reference(engine, decoded, masked_build):
-    from t2m.export.families.masked_random import random_masked_models
-    from t2m.model.sampling.masked import generate_token_maps
+    from t2m.families.masked.random_bundle import random_masked_models
+    from t2m.families.masked.sampling import generate_token_maps
 
     models = random_masked_models(**{k: v for k, v in masked_build.items() if k != "steps"})
     engine.generate(_request(STREAM, seed=5, guidance=3.0))
@@ -164,8 +165,8 @@ def test_a_gpt_and_a_masked_bundle_served_together(random_bundle, masked_bundle,
 
 
 def test_the_1d_variant_serves_the_pytorch_reference_tokens(masked_1d_bundle, monkeypatch):
-    from t2m.export.families.masked_random import random_masked_models
-    from t2m.model.sampling.masked import generate_token_maps
+    from t2m.families.masked.random_bundle import random_masked_models
+    from t2m.families.masked.sampling import generate_token_maps
     from t2m.service.engine.engine import OnnxEngine
 
     engine = OnnxEngine.load(masked_1d_bundle, intra_op_threads=1)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.decoding.gpt import SamplingJob, sample_codes
 from t2m.decoding.tokens import sample_tokens
+from t2m.families.gpt.loop import SamplingJob, sample_codes
 
 V = 8          # codebook size of the scripted step
 END = V
@@ -126,9 +126,9 @@ def torch_bundle(tmp_path_factory):
     """A tiny GPT (End logits amplified so free segments end at varied lengths) exported next to its module."""
     import torch
 
-    from t2m.export.families.gpt import export_bundle
     from t2m.export.kit.text_sources import tiny_text_source
-    from t2m.model.networks.gpt import GPTConfig, MotionGPT
+    from t2m.families.gpt.export import export_bundle
+    from t2m.families.gpt.network import GPTConfig, MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
     torch.set_num_threads(1)
@@ -150,7 +150,7 @@ def torch_bundle(tmp_path_factory):
 def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
     import torch
 
-    from t2m.model.sampling.gpt import sample_codes as torch_sample_codes
+    from t2m.families.gpt.sampling import sample_codes as torch_sample_codes
     from t2m.service.engine.engine import OnnxEngine
 
     path, gpt = torch_bundle
@@ -170,8 +170,8 @@ def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
 @pytest.mark.parametrize(("guidance", "temperature", "top_k"), [(1.0, 1.0, None), (2.5, 0.8, 5)])
 def test_seeded_sampling_matches_pytorch_reference(torch_bundle, guidance, temperature, top_k):
     """Not only greedy: with the same seed, the service (onnxruntime) and the PyTorch reference draw the same codes,
-    because both run one loop (t2m.decoding.gpt) and their logits agree to ~1e-6."""
-    from t2m.model.sampling.gpt import sample_codes as torch_sample_codes
+    because both run one loop (t2m.families.gpt.loop) and their logits agree to ~1e-6."""
+    from t2m.families.gpt.sampling import sample_codes as torch_sample_codes
     from t2m.service.engine.engine import OnnxEngine
 
     path, gpt = torch_bundle

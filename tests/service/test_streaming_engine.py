@@ -237,7 +237,7 @@ def test_a_causal_decoder_looks_three_steps_ahead_and_streams_a_one_sentence_mot
     (through the trimming Slice) is what the probe measures, it looks 3 steps ahead (at most: conv_in's next code,
     and the k=3 convolutions after each x2 level), fewer than the same decoder without causal blocks, and a motion of
     one sentence gets early frames equal to its whole decode."""
-    from t2m.export.families.hifigpt_random import build_random_hifigpt_bundle
+    from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
     from t2m.service.engine.engine import OnnxEngine
 
     bundle = build_random_hifigpt_bundle(tmp_path / "causal", depth=3, codebook_size=16, seed=2,

@@ -171,9 +171,9 @@ def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp
     from synthetic_motion_data import make_dataset
 
     from t2m.cli.main import main
-    from t2m.export.families.diffusion_random import build_random_diffusion_bundle
     from t2m.export.writing.caption_index import encode_with_bundle, training_captions
-    from t2m.service.engine.diffusion_codes import encode_token_states, pooled_token_states
+    from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
+    from t2m.families.diffusion.served import encode_token_states, pooled_token_states
     from t2m.service.engine.engine import OnnxEngine
 
     bundle = tmp_path / "dip"

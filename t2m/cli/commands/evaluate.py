@@ -22,8 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "generation at each guidance scale, mean ± 95% interval over repeats; plus T2LM's sliding- and "
                     "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "
                     "GPT family: --vq VQ_RUN --gpt RUN. Masked family: --vq JOINT_VQ_RUN --masked RUN --residual RUN "
-                    "[--length RUN], decoded by the service's loop (t2m.decoding.masked). T2M-HiFiGPT: --vq "
-                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.decoding.hifigpt). A served GPT, T2M-HiFiGPT or diffusion "
+                    "[--length RUN], decoded by the service's loop (t2m.families.masked.loop). T2M-HiFiGPT: --vq "
+                    "RESIDUAL_VQ_RUN --hifigpt RUN (t2m.families.hifigpt.loop). A served GPT, T2M-HiFiGPT or diffusion "
                     "bundle: --bundle DIR (its text, step or denoiser and decoder graphs in onnxruntime through the "
                     "service's loop; no VQ-reconstruction row; a diffusion bundle's streams are one request each, "
                     "joined as served).")

@@ -111,13 +111,13 @@ def register_momask(sources: argparse._SubParsersAction) -> None:
 
 
 def run_momask(args: argparse.Namespace) -> int:
-    from t2m.export.importers.momask import import_momask
+    from t2m.families.masked.import_momask import import_momask
 
     return _run_release("MoMask", import_momask, args)
 
 
 def run_mogents(args: argparse.Namespace) -> int:
-    from t2m.export.importers.mogents import import_mogents
+    from t2m.families.masked.import_mogents import import_mogents
 
     return _run_release("MoGenTS", import_mogents, args)
 
@@ -165,7 +165,7 @@ def _report(release: str, manifest: dict, output: Path, args: argparse.Namespace
 def run_t2m_gpt(args: argparse.Namespace) -> int:
     import logging
 
-    from t2m.export.importers.t2m_gpt import import_t2m_gpt
+    from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     manifest, checks = import_t2m_gpt(
@@ -217,7 +217,7 @@ def register_diffusion(sources: argparse._SubParsersAction) -> None:
 def run_diffusion(args: argparse.Namespace) -> int:
     import logging
 
-    from t2m.export.importers.diffusion_import import import_dip, import_mdm
+    from t2m.families.diffusion.importer import import_dip, import_mdm
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     common = {"bert_dir": args.bert, "model_file": args.model, "humanml3d": args.humanml3d, "mean": args.mean,

@@ -29,7 +29,7 @@ import torch
 
 from t2m.bundles import GPT_BUNDLE
 from t2m.export.bench.machine import describe_machine
-from t2m.model.networks.gpt import GPTConfig, MotionGPT
+from t2m.families.gpt.network import GPTConfig, MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
 GPT_MANIFEST = GPT_BUNDLE / "manifest.json"
@@ -113,7 +113,7 @@ def case_key(case: BenchCase, gpt: MotionGPT, vq: MotionVQVAE) -> str:
 def export_case(case: BenchCase, gpt: MotionGPT, vq: MotionVQVAE, graph_dir: Path) -> tuple[Path, Path, float]:
     """The case's step and decoder graphs in graph_dir (reused when already there); returns their paths and export s."""
     from t2m.export.graphs.decoder import export_decoder
-    from t2m.export.graphs.gpt import export_gpt_step
+    from t2m.families.gpt.export_graphs import export_gpt_step
 
     key = case_key(case, gpt, vq)
     step_path, decoder_path = graph_dir / f"{key}_gpt_step.onnx", graph_dir / f"{key}_decoder.onnx"

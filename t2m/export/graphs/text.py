@@ -51,7 +51,7 @@ class _StatesOnly(nn.Module):
 def export_token_states_graph(module: nn.Module, path: str | Path, example_ids: torch.Tensor,
                               example_mask: torch.Tensor) -> Path:
     """Write a token-state text graph (DiP's DistilBERT, MiniLM's states; the diffusion family's contract,
-    t2m/families/diffusion.py) from ``module(input_ids, attention_mask) -> [B, L, Dt]`` (or ``(states, mask)``):
+    t2m/families/diffusion/family.py) from ``module(input_ids, attention_mask) -> [B, L, Dt]`` (or ``(states, mask)``):
     input_ids, attention_mask int64 [B, L] -> token_states float32 [B, L, Dt], every token's state, nothing pooled,
     B and L dynamic; padded positions hold values the denoiser's text_mask hides."""
     names = ["input_ids", "attention_mask"]

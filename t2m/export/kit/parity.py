@@ -1,8 +1,8 @@
 """onnxruntime vs PyTorch, float32: does the bundle compute what the trained modules compute?
 
 - GPT step graph: a greedy rollout of ``steps`` codes (End masked, so every step yields a code) with the
-  guidance pair (cond row + zero-condition row) in one batch, run by the service's own loop (t2m.decoding.gpt)
-  once over ``MotionGPT.forward_step`` (t2m.model.sampling.gpt.TorchGptStep) and once over onnxruntime, each feeding
+  guidance pair (cond row + zero-condition row) in one batch, run by the service's own loop (t2m.families.gpt.loop)
+  once over ``MotionGPT.forward_step`` (t2m.families.gpt.sampling.TorchGptStep) and once over onnxruntime, each feeding
   back its own choices. Reports the largest logit difference over all steps and rows, whether the code sequences
   are identical, and the difference from full-prefix recomputation (``forward``, as T2M-GPT samples).
 - Decoder graph: features for random codes vs ``vq.decode(codes) * std + mean`` (residual: some depths -1).
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from t2m.model.networks.gpt import MotionGPT
+from t2m.families.gpt.network import MotionGPT
 from t2m.model.networks.vqvae import MotionVQVAE
 
 PARITY_TEXTS = [
@@ -46,7 +46,7 @@ def guidance_rows(cond: np.ndarray, length: np.ndarray, guidance: float) -> tupl
 
 
 class _RecordingStep:
-    """A GPT step (t2m.decoding.gpt.GptStep) that records each call's logits and feeds the rollout's own length
+    """A GPT step (t2m.families.gpt.loop.GptStep) that records each call's logits and feeds the rollout's own length
     input (a row may read 0, free length, while the loop holds it to exactly `steps` codes)."""
 
     def __init__(self, step: Any, length: np.ndarray) -> None:
@@ -65,9 +65,9 @@ class _RecordingStep:
 
 def greedy_rollout(step: Any, cond: np.ndarray, length: np.ndarray, steps: int, end_id: int,
                    guidance: float = 1.0) -> Rollout:
-    """`steps` guided argmax codes per row through the service's own GPT loop (t2m.decoding.gpt, End masked until
+    """`steps` guided argmax codes per row through the service's own GPT loop (t2m.families.gpt.loop, End masked until
     the target) over any step: the exported graph or the PyTorch module, each feeding back its own choices."""
-    from t2m.decoding.gpt import SamplingJob, sample_codes
+    from t2m.families.gpt.loop import SamplingJob, sample_codes
 
     cond = np.asarray(cond, np.float32)
     recorder = _RecordingStep(step, guidance_rows(cond, np.asarray(length, np.int64), guidance)[1])
@@ -113,7 +113,7 @@ def gpt_parity(gpt: MotionGPT, onnx_path: str | Path, steps: int = 50, guidance:
                seed: int = 0) -> GptParity:
     """Compare the exported step graph with the PyTorch model on a ``steps``-long greedy rollout."""
     from t2m.export.graphs.export import ort_session
-    from t2m.model.sampling.gpt import TorchGptStep, evaluating
+    from t2m.families.gpt.sampling import TorchGptStep, evaluating
 
     c = gpt.config
     steps = min(steps, c.max_tokens)

@@ -68,15 +68,15 @@ def clip_text_source(weights: str | Path) -> TextSource:
 
 
 def mdm_clip_text_source(weights: str | Path) -> TextSource:
-    """MDM's CLIP text path (t2m.model.networks.diffusion_text.MdmClipEncoder): the CLIP graph of the other
+    """MDM's CLIP text path (t2m.families.diffusion.text_encoders.MdmClipEncoder): the CLIP graph of the other
     families with OpenAI's tokenizer cut to 22 ids (20 BPE tokens), features in float32."""
-    from t2m.model.networks.diffusion_text import MdmClipEncoder
+    from t2m.families.diffusion.text_encoders import MdmClipEncoder
 
     return encoder_text_source(MdmClipEncoder(weights))
 
 
 def token_states_text_source(encoder: Any) -> TextSource:
-    """A t2m.model.networks.diffusion_text.TokenStateEncoder (DiP's DistilBERT, MiniLM's states): the token-state
+    """A t2m.families.diffusion.text_encoders.TokenStateEncoder (DiP's DistilBERT, MiniLM's states): the token-state
     graph (token_states) and its tokenizer.json; the manifest entry says ``pooling: tokens``."""
 
     def write(out_dir: Path) -> dict:

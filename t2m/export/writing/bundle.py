@@ -1,7 +1,7 @@
 """Write model bundles (docs/contracts.md "The bundle"): files + manifest.json with sha256 and sizes, then verify.
 
 ``write_bundle`` is the only place a manifest's ``files`` table is computed, so every bundle -
-exported from our runs, imported from T2M-GPT, or a random test bundle (t2m.export.families.gpt_random) - is
+exported from our runs, imported from T2M-GPT, or a random test bundle (t2m.families.gpt.random_bundle) - is
 hashed and checked the same way.
 """
 from __future__ import annotations

@@ -107,7 +107,7 @@ class _ComparingSession:
 
 
 class _ComparingStep:
-    """A GPT-loop step (t2m.decoding.gpt.GptStep) over a captured graph that also steps its quantised twin on the
+    """A GPT-loop step (t2m.families.gpt.loop.GptStep) over a captured graph that also steps its quantised twin on the
     same inputs, the twin with a cache of its own; the served loop sees only the float32 logits and cache."""
 
     def __init__(self, fp32: Any, quantised: Any, record: GraphParity) -> None:
@@ -151,7 +151,7 @@ def compare_bundles(fp32_dir: str | Path, quantised_dir: str | Path, graphs: Seq
                                                     report.graphs[name])
     engines = [OnnxEngine(bundle) for bundle in (fp32, quantised)]
     if captured:
-        from t2m.service.engine.gpt_codes import GptCodes
+        from t2m.families.gpt.served import GptCodes
 
         (name,) = graphs   # the one captured graph a family has: the GPT's, served through its step
         fp32_codes, quantised_codes = (engine.codes for engine in engines)

@@ -44,8 +44,8 @@ from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_t
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 if TYPE_CHECKING:
+    from t2m.families.masked.evaluation import MaskedSettings
     from t2m.model.evaluation.family import CodeDecoder, CodeFamily, TextFeatureSource
-    from t2m.model.evaluation.masked_family import MaskedSettings
     from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
 
@@ -125,7 +125,7 @@ def _load_evaluator_and_vq(evaluator_run: str | Path, vq_run: str | Path, vq_kin
                            ) -> tuple[MotionEvaluator, MotionVQVAE | JointVQVAE, np.ndarray, np.ndarray]:
     """The evaluator and a VQ of one of `vq_kinds`; the VQ statistics come from its run (mean.npy/std.npy) or else
     the dataset."""
-    from t2m.model.evaluation.masked_family import load_run
+    from t2m.families.masked.evaluation import load_run
     from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
     from t2m.model.training.checkpoint import load_model, read_run_config
@@ -153,7 +153,7 @@ def _models(evaluator: MotionEvaluator, vq: MotionVQVAE | JointVQVAE, family: Co
 def load_models(evaluator_run: str | Path, vq_run: str | Path, gpt_run: str | Path, data_mean: np.ndarray,
                 data_std: np.ndarray) -> Models:
     """The GPT family: evaluator, a 1D VQ and a GPT over its codes."""
-    from t2m.model.evaluation.gpt_family import load_gpt_family
+    from t2m.families.gpt.evaluation import load_gpt_family
 
     evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
     family = load_gpt_family(gpt_run, vq.config.nb_code, vq_run)
@@ -163,7 +163,7 @@ def load_models(evaluator_run: str | Path, vq_run: str | Path, gpt_run: str | Pa
 def load_hifigpt_models(evaluator_run: str | Path, vq_run: str | Path, hifigpt_run: str | Path,
                         data_mean: np.ndarray, data_std: np.ndarray) -> Models:
     """T2M-HiFiGPT: evaluator, a residual 1D VQ and the double-tier GPT over its code maps."""
-    from t2m.model.evaluation.hifigpt_family import load_hifigpt_family
+    from t2m.families.hifigpt.evaluation import load_hifigpt_family
     from t2m.model.networks.vqvae import MotionVQVAE
 
     evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
@@ -177,7 +177,7 @@ def load_masked_models(evaluator_run: str | Path, vq_run: str | Path, masked_run
                        data_mean: np.ndarray, data_std: np.ndarray) -> Models:
     """The masked family: evaluator, the joint VQ (or MoMask's 1D residual VQ), the masked transformer, the residual
     transformer and optionally the length estimator."""
-    from t2m.model.evaluation.masked_family import load_masked_family
+    from t2m.families.masked.evaluation import load_masked_family
 
     evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["joint_vq", "vq"], data_mean,
                                                       data_std)

@@ -14,8 +14,8 @@ import numpy as np
 
 
 class CodeFamily(Protocol):
-    """A generator of VQ codes for text features: the GPT (t2m.model.evaluation.gpt_family) or the masked family
-    (t2m.model.evaluation.masked_family)."""
+    """A generator of VQ codes for text features: the GPT (t2m.families.gpt.evaluation) or the masked family
+    (t2m.families.masked.evaluation)."""
 
     name: str                      # its model family's name (t2m.bundle.family)
     text_encoder: str              # the text features it is conditioned on ("minilm", "clip")

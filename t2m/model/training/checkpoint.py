@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, Literal, overload
 from torch import nn
 
 if TYPE_CHECKING:
+    from t2m.families.gpt.network import MotionGPT
     from t2m.model.networks.evaluator import MotionEvaluator
-    from t2m.model.networks.gpt import MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE
 
 CONFIG_FILE = "config.json"
@@ -36,7 +36,7 @@ def kinds() -> tuple[str, ...]:
 
 
 def model_kind(model: nn.Module) -> str:
-    from t2m.model.networks.gpt import MotionGPT
+    from t2m.families.gpt.network import MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE
 
     if isinstance(model, MotionVQVAE):
@@ -129,7 +129,7 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
 
         return MotionVQVAE(VQConfig.from_dict(config))
     if kind == "gpt":
-        from t2m.model.networks.gpt import GPTConfig, MotionGPT
+        from t2m.families.gpt.network import GPTConfig, MotionGPT
 
         return MotionGPT(GPTConfig.from_dict(config))
     if kind == "evaluator":

@@ -2,7 +2,7 @@
 
 The graph has one input; it is fed by its declared name and element type: int64 `codes` for the token families,
 float32 `motion` (normalised feature frames, [B, frames, D]) for the diffusion family, whose model makes the
-features itself and whose decoder only de-normalises them (t2m/families/diffusion.py)."""
+features itself and whose decoder only de-normalises them (t2m/families/diffusion/family.py)."""
 from __future__ import annotations
 
 import numpy as np

@@ -252,7 +252,7 @@ class OnnxEngine:
 
     @property
     def step(self) -> Any:
-        """The GPT family's step graph (t2m.decoding.gpt.GptStep), as tests drive it directly."""
+        """The GPT family's step graph (t2m.families.gpt.loop.GptStep), as tests drive it directly."""
         step = getattr(self.codes, "step", None)
         if step is None:
             raise AttributeError(f"a {self.bundle.manifest.family!r} bundle has no GPT step")

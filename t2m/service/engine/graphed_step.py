@@ -4,7 +4,7 @@ gpt_step_fixed.onnx (`FixedCacheGptStep`) and any graph without a cache (`Graphe
 Why: a release-size GPT step is ~500 small kernels, each launched from the host; on an H100 that launch work, not
 arithmetic, is the step's 3.1-3.6 ms (docs/gpu.md). A CUDA graph replays all of a call's kernels with one launch,
 but only if every replay has the same shapes and the same buffer addresses. So, for the GPT step:
-- the graph's cache has a fixed capacity (t2m/model/networks/fixed_cache.py) and each row its own position;
+- the graph's cache has a fixed capacity (t2m/families/gpt/fixed_cache.py) and each row its own position;
 - a cohort gets one `FixedCache`: its inputs, its logits and two cache buffers live on the device for its whole
   life; a step reads one cache buffer and writes the other, the next step the other way round, so a cohort uses two
   captured graphs (one per direction), each with fixed addresses;
@@ -69,7 +69,7 @@ class FixedCache:
 
 
 class FixedCacheGptStep:
-    """The GPT loop's step (t2m.decoding.gpt.GptStep) over gpt_step_fixed.onnx; see the module docstring."""
+    """The GPT loop's step (t2m.families.gpt.loop.GptStep) over gpt_step_fixed.onnx; see the module docstring."""
 
     def __init__(self, session: ort.InferenceSession, n_layer: int, n_head: int, head_dim: int, capacity: int,
                  has_length_input: bool, cuda_graph: bool = False) -> None:

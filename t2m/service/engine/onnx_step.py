@@ -1,6 +1,7 @@
-"""The decoding loops' steps over onnxruntime: gpt_step.onnx for the GPT loop (t2m.decoding.gpt.GptStep), the masked
-family's masked.onnx and residual.onnx for its loop (t2m.decoding.masked), T2M-HiFiGPT's temporal_step.onnx and
-residual_step.onnx for its loop (t2m.decoding.hifigpt)."""
+"""The decoding loops' steps over onnxruntime: gpt_step.onnx for the GPT loop (t2m.families.gpt.loop.GptStep), the
+masked
+family's masked.onnx and residual.onnx for its loop (t2m.families.masked.loop), T2M-HiFiGPT's temporal_step.onnx and
+residual_step.onnx for its loop (t2m.families.hifigpt.loop)."""
 from __future__ import annotations
 
 from typing import Any
@@ -61,7 +62,7 @@ class OnnxMaskedStep:
 
 class OnnxResidualStep:
     """residual.onnx: (codes [B, T, C, R], layer [B], cond [B, Dt], length [B]) -> logits of layer q (``mask_id``:
-    see t2m.decoding.masked.ResidualStep)."""
+    see t2m.families.masked.loop.ResidualStep)."""
 
     def __init__(self, session: ort.InferenceSession, layers: int, pad_id: int, mask_id: int | None = None) -> None:
         self.session, self.layers, self.pad_id, self.mask_id = session, layers, pad_id, mask_id

@@ -14,8 +14,8 @@ from fastapi import APIRouter, Depends, Response
 from fastapi.exceptions import RequestValidationError
 from starlette.concurrency import run_in_threadpool
 
+from t2m.families.diffusion.edits import edit_recipe
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
-from t2m.service.diffusion_edits import edit_recipe
 from t2m.service.editing import EditError, EditPlan, plan_edit
 from t2m.service.engine.types import GenerationRequest, Motion, RequestLimitError, SegmentRequest
 from t2m.service.formats import STREAM_MEDIA_TYPE
