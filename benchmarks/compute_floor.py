@@ -35,7 +35,7 @@ if __package__ in (None, ""):  # run as a script: make `benchmarks.*` and `t2m` 
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.continuous_batching import machine
 from t2m.export.writing.quantize import quantize_graph
-from t2m.service.engine.bundle import session_options
+from t2m.runtime.bundle_loader import session_options
 
 __all__ = ["GraphCall", "count_macs", "main", "request_calls"]
 
@@ -100,7 +100,7 @@ def count_macs(profile: list[dict]) -> float:
 
 
 def _session(path: Path, threads: int, profile: bool = False) -> ort.InferenceSession:
-    """A session opened with the service's options (t2m.service.engine.bundle.session_options)."""
+    """A session opened with the service's options (t2m.runtime.bundle_loader.session_options)."""
     options = session_options(threads, 1)
     options.enable_profiling = profile
     options.profile_file_prefix = str(Path(tempfile.gettempdir()) / "t2m_compute_floor")

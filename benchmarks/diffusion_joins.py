@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks.join_smoothness import velocity_changes
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 
 REQUESTS = [
     [("a person walks forward", 3.1), ("a person waves with the right hand", 2.3), ("a person bows", 1.9)],

@@ -2,7 +2,7 @@
 
 A 3-sentence 8 s motion ("walk 3 s, wave 2 s, bow 3 s") is generated once; then, alternating, the whole request is
 generated again (what a client without /edit does to change the wave) and the wave alone is edited the way POST
-/edit does it (t2m.service.edit_runner.edit_with_engine): for a token model the handle read back and checked, the
+/edit does it (t2m.runtime.edit_runner.edit_with_engine): for a token model the handle read back and checked, the
 edited segment sampled alone with its own seed (the masked family: inpainted with the kept codes around it), every
 code decoded once (OnnxEngine.compose), the new handle written; for a diffusion model the recipe replayed, the
 segment made again and its joins re-made. Medians and p90 of
@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.service.edit_runner import edit_with_engine
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
-from t2m.service.handles import make_handle, read_handle
-from t2m.service.recipes import read_recipe
-from t2m.service.schemas import RegenerateEdit
+from t2m.api.schemas import RegenerateEdit
+from t2m.runtime.edit_runner import edit_with_engine
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.handles import make_handle, read_handle
+from t2m.runtime.recipes import read_recipe
+from t2m.runtime.types import GenerationRequest, Motion, SegmentRequest
 
 REPO = Path(__file__).resolve().parents[1]
 SENTENCES = [("a person walks forward", 3.0), ("a person waves with the right hand", 2.0), ("a person bows", 3.0)]

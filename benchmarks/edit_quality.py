@@ -1,5 +1,5 @@
 """Does an edited span follow its new text, and are the edit's borders as smooth as a generated stream's joins?
-(issue 27, "Measured"). Engine level, the path POST /edit takes (t2m.service.edit_runner.edit_with_engine).
+(issue 27, "Measured"). Engine level, the path POST /edit takes (t2m.runtime.edit_runner.edit_with_engine).
 
 Per model and seed: "walk 3 s, wave 2 s, bow 3 s" is generated; its wave is edited into "a person raises the left
 hand"; as the reference, "walk 3 s, raise the left hand 2 s, bow 3 s" is generated whole with the same seed. Printed:
@@ -24,13 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from t2m.api.schemas import InBetweenEdit, RegenerateEdit
 from t2m.model.evaluation.foot_skating import foot_skating
 from t2m.model.evaluation.probes import join_smoothness, probe_by_name
-from t2m.service.edit_runner import edit_with_engine
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
-from t2m.service.handles import make_handle
-from t2m.service.schemas import InBetweenEdit, RegenerateEdit
+from t2m.runtime.edit_runner import edit_with_engine
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.handles import make_handle
+from t2m.runtime.types import GenerationRequest, Motion, SegmentRequest
 
 REPO = Path(__file__).resolve().parents[1]
 BEFORE, AFTER = ("a person walks forward", 3.0), ("a person bows", 3.0)

@@ -27,7 +27,7 @@ def _serve_batches(name: str, graphs: str, workdir: str, device: str, batch: int
     import torch
 
     from benchmarks import gpu_suite as suite
-    from t2m.service.engine.execution import Execution
+    from t2m.runtime.execution import Execution
 
     try:
         torch.set_grad_enabled(False)

@@ -36,7 +36,7 @@ SUITE_SESSION = gpu_suite.session
 def profiled_session(path: Path, execution: Any,
                      options: ort.SessionOptions | None = None) -> ort.InferenceSession:
     """gpu_suite.session with onnxruntime's profiler on (its file written when the session ends its profiling)."""
-    from t2m.service.engine.bundle import session_options
+    from t2m.runtime.bundle_loader import session_options
 
     options = options or session_options(0, 1)
     options.enable_profiling = True
@@ -63,7 +63,7 @@ def summarise(events: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def profile_case(case: Any, device: str, out: Path) -> None:
-    from t2m.service.engine.execution import Execution
+    from t2m.runtime.execution import Execution
 
     PROFILED.clear()
     providers = ("cuda",) if device == "cuda" else ("cpu",)

@@ -133,9 +133,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--models", default="momask,t2m-gpt", help=f"comma-separated, of {', '.join(IMPORTS)}")
     parser.add_argument("--schemes", default="float32,fp16", help="float32 (as imported) and/or fp16 (t2m quantize)")
     args = parser.parse_args(argv)
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.execution import Execution
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.execution import Execution
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     request = GenerationRequest([SegmentRequest("a person walks forward and turns around", 9.8)], seed=3)
     rows, notes = [], []

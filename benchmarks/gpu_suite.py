@@ -1,5 +1,5 @@
 """GPU suite (issue 29): every embedded model and the release sizes, onnxruntime on CUDA with the step caches kept on
-the device (I/O binding, t2m/service/engine/bound_step.py) against the PyTorch eager reference of the same loop on
+the device (I/O binding, t2m/runtime/bound_step.py) against the PyTorch eager reference of the same loop on
 the same GPU (t2m/model/sampling: the project's own reference steps, their caches left on the device too).
 
 Both columns run the one numpy decoding loop of each family (t2m/decoding: gpt.py, hifigpt.py, masked.py), so the
@@ -187,7 +187,7 @@ GRAPH_VARIANT: Graphs | None = None      # set by main from --graphs
 def session(path: Path, execution: Any, options: ort.SessionOptions | None = None) -> ort.InferenceSession:
     """The graph at `path` on the execution's providers, converted as --graphs says (decoders stay as they are: they
     are timed apart, the same for every column)."""
-    from t2m.service.engine.bundle import open_session, session_options
+    from t2m.runtime.bundle_loader import open_session, session_options
 
     decoder = path.stem == "decoder" or path.stem.endswith("_decoder")
     served = GRAPH_VARIANT(path) if GRAPH_VARIANT is not None and not decoder else path
@@ -197,8 +197,8 @@ def session(path: Path, execution: Any, options: ort.SessionOptions | None = Non
 def onnx_gpt(step_path: Path, n_layer: int, n_head: int, head_dim: int, length: bool, dim: int, tokens: int,
              max_tokens: int, end_id: int) -> Callable[[Any], Generate]:
     def make(execution: Any) -> Generate:
-        from t2m.service.engine.bound_step import BoundGptStep
-        from t2m.service.engine.onnx_step import OnnxGptStep
+        from t2m.runtime.bound_step import BoundGptStep
+        from t2m.runtime.onnx_step import OnnxGptStep
 
         kind = BoundGptStep if execution.binds else OnnxGptStep
         step = kind(session(step_path, execution), n_layer, n_head, head_dim, length)
@@ -208,9 +208,9 @@ def onnx_gpt(step_path: Path, n_layer: int, n_head: int, head_dim: int, length: 
 
 def capturing_session(path: Path, device: str) -> ort.InferenceSession:
     """The graph at `path` (converted as --graphs says) on `device`, its CUDA provider capturing CUDA graphs."""
-    from t2m.service.engine.bundle import session_options
-    from t2m.service.engine.execution import Execution
-    from t2m.service.engine.graphed_step import graph_session
+    from t2m.runtime.bundle_loader import session_options
+    from t2m.runtime.execution import Execution
+    from t2m.runtime.graphed_step import graph_session
 
     served = GRAPH_VARIANT(path) if GRAPH_VARIANT is not None else path
     providers = Execution(("cuda",) if device == "cuda" else ("cpu",)).ort_providers
@@ -220,7 +220,7 @@ def capturing_session(path: Path, device: str) -> ort.InferenceSession:
 def fixed_gpt(step_path: Path, config: Any, dim: int, tokens: int) -> Callable[[str], Generate]:
     """The GPT loop over the fixed-capacity step (engine/graphed_step.py): CUDA graphs on 'cuda', none on 'cpu'."""
     def make(device: str) -> Generate:
-        from t2m.service.engine.graphed_step import FixedCacheGptStep
+        from t2m.runtime.graphed_step import FixedCacheGptStep
 
         step = FixedCacheGptStep(capturing_session(step_path, device), config.n_layer, config.n_head,
                                  config.head_dim, config.block_size, config.length_conditioning,
@@ -263,8 +263,8 @@ def embedded_hifigpt_case() -> Case:
     h, dim, depth, steps = manifest["hifigpt"], manifest["text_encoder"]["dim"], manifest["residual_layers"], 25
 
     def make_onnx(execution: Any) -> Generate:
-        from t2m.service.engine.bound_step import BoundResidualGptStep, BoundTemporalStep
-        from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
+        from t2m.runtime.bound_step import BoundResidualGptStep, BoundTemporalStep
+        from t2m.runtime.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
 
         temporal_kind = BoundTemporalStep if execution.binds else OnnxTemporalStep
         residual_kind = BoundResidualGptStep if execution.binds else OnnxResidualGptStep
@@ -296,7 +296,7 @@ def embedded_hifigpt_case() -> Case:
 def onnx_masked(masked_path: Path, residual_path: Path | None, columns: int, mask_id: int, layers: int, pad_id: int,
                 dim: int, rows: int, passes: int, decoding: dict[str, Any]) -> Callable[[Any], Generate]:
     def make(execution: Any) -> Generate:
-        from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+        from t2m.runtime.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
         masked = OnnxMaskedStep(session(masked_path, execution), columns, mask_id)
         residual = None if residual_path is None else OnnxResidualStep(session(residual_path, execution), layers,
@@ -311,8 +311,8 @@ def graphed_masked(masked_path: Path, residual_path: Path | None, columns: int, 
     """The masked loop with its calls replayed as CUDA graphs, one per input shape (engine/graphed_step.py's
     GraphedSession; on 'cpu' the same buffers, no capture)."""
     def make(device: str) -> Generate:
-        from t2m.service.engine.graphed_step import GraphedSession
-        from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+        from t2m.runtime.graphed_step import GraphedSession
+        from t2m.runtime.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
         def graphed(path: Path) -> Any:
             return GraphedSession(capturing_session(path, device), cuda_graph=device == "cuda")
@@ -501,7 +501,7 @@ def agreement(case: Case, samplers: dict[str, Generate | None], notes: list[str]
 def bench_case(case: Case, device: str, batches: list[int], repeats: int, ort_ok: bool, torch_ok: bool,
                failures: list[str], notes: list[str]) -> list[Row]:
     """The case's rows; a method that cannot be built or run is reported in `failures`, the others go on."""
-    from t2m.service.engine.execution import Execution
+    from t2m.runtime.execution import Execution
 
     providers = ("cuda",) if device == "cuda" else ("cpu",)
     variant = GRAPH_VARIANT or Graphs("shipped", Path())

@@ -36,7 +36,7 @@ from t2m.families.hifigpt.export_graphs import export_residual_step, export_temp
 from t2m.families.hifigpt.loop import depth_loop, sample_code_rows
 from t2m.families.hifigpt.network import HiFiGPT, HiFiGPTConfig
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
-from t2m.service.engine.onnx_step import OnnxGptStep
+from t2m.runtime.onnx_step import OnnxGptStep
 
 TEXT_DIM = 384
 SECONDS = 10

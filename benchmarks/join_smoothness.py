@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.timeline import fit_frames
-from t2m.service.engine.types import GenerationRequest, SegmentRequest, frames_for_duration
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.timeline import fit_frames
+from t2m.runtime.types import GenerationRequest, SegmentRequest, frames_for_duration
 
 BUNDLES = Path(__file__).resolve().parents[1] / "t2m" / "bundles"
 REQUESTS: list[list[tuple[str, float]]] = [

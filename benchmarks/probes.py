@@ -30,10 +30,10 @@ if __package__ in (None, ""):  # run as a script: make the repo's packages impor
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from t2m.model.evaluation.action_probes import ACTION_PROBES
 from t2m.model.evaluation.probes import PROBES, STREAM, ProbeSpec, join_smoothness, probe_by_name
-from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
+from t2m.runtime.types import GenerationRequest, Motion, SegmentRequest
 
 if TYPE_CHECKING:
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
 __all__ = [
     "ProbeReport",
@@ -383,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--duration: {args.duration} is outside 0.2..10 s")
     try:
         specs = PROBES if args.probes is None else [_spec(name.strip()) for name in args.probes.split(",")]
-        from t2m.service.engine.engine import OnnxEngine
+        from t2m.runtime.engine import OnnxEngine
 
         engine = OnnxEngine.load(args.bundle)
     except (ValueError, FileNotFoundError) as error:

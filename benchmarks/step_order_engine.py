@@ -35,9 +35,9 @@ def run_phase_here(model: str, phase: str, seconds: float, long_clients: int, cl
     older checkout cannot import); per kind its latencies (ms) and the phase's length."""
     from threadpoolctl import threadpool_limits
 
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
-    from t2m.service.scheduling import ContinuousBatcher
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.scheduling import ContinuousBatcher
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     engine = OnnxEngine.load(model, intra_op_threads=1)
     threadpool_limits(1)

@@ -1,9 +1,9 @@
-"""Write t2m/service/engine/keep_rows.onnx, the one-node graph that keeps some rows of a device-resident key/value
+"""Write t2m/runtime/keep_rows.onnx, the one-node graph that keeps some rows of a device-resident key/value
 cache (Gather along the batch axis 2 of [n_layer, 2, B, n_head, P, head_dim]), or check that the committed file is
 current.
 
 Why a committed file: the service has no `onnx` package at run time (only onnxruntime), yet a bound step cache
-(t2m/service/engine/bound_step.py) must drop finished rows without leaving the device, so the graph is built here,
+(t2m/runtime/bound_step.py) must drop finished rows without leaving the device, so the graph is built here,
 with onnx, once. tests/service/test_bound_step.py fails when the committed file differs from what this writes.
 Usage: python scripts/keep_rows_graph.py            (rewrite the file)
        python scripts/keep_rows_graph.py --check    (exit 1 and say so when it is not current)

@@ -1,6 +1,6 @@
 """The README's picture of an edit (issue 27): a motion and the same motion with one segment regenerated.
 
-"walk 3 s, wave 2 s, bow 3 s" is generated once; POST /edit's path (t2m.service.edit_runner.edit_with_engine)
+"walk 3 s, wave 2 s, bow 3 s" is generated once; POST /edit's path (t2m.runtime.edit_runner.edit_with_engine)
 replaces the wave by "a person raises the left hand" and keeps the rest. docs/images/edit.png draws both as rows of
 the contact sheet (scripts/render_motions.py), each titled with what the raise-left probe measures on its middle
 segment, and the edited row with how many frames stayed bit-identical.
@@ -40,10 +40,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(REPO / "docs" / "images" / "edit.png"), help="the PNG to write")
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args(argv)
-    from t2m.service.edit_runner import edit_with_engine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
-    from t2m.service.handles import make_handle
-    from t2m.service.schemas import RegenerateEdit
+    from t2m.api.schemas import RegenerateEdit
+    from t2m.runtime.edit_runner import edit_with_engine
+    from t2m.runtime.handles import make_handle
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     engine = load_engine(args.bundle)
     if engine is None:

@@ -27,7 +27,7 @@ from t2m.model.evaluation.probes import STREAM, initial_facing, path_length, pro
 from t2m.motion.skeleton import SMPL22
 
 if TYPE_CHECKING:
-    from t2m.service.engine.types import Motion
+    from t2m.runtime.types import Motion
 
 __all__ = ["SINGLE_MOTIONS", "Camera", "SheetRow", "contact_sheet", "load_engine", "main", "stream_gif"]
 
@@ -248,7 +248,7 @@ def _title(text: str, seconds: float, seed: int, probe: str, joints: np.ndarray)
 
 def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) -> tuple[list[SheetRow], Motion]:
     """Generate the single-sentence motions and the stream; the sheet's rows and the stream's Motion."""
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     singles = [(name, probe_by_name(name).phrasings[index]) for name, index in SINGLE_MOTIONS]
     requests = [GenerationRequest(segments=[SegmentRequest(text, duration)], seed=seed, guidance=guidance)
@@ -271,7 +271,7 @@ def generated_rows(engine, seed: int, guidance: float, duration: float = 3.0) ->
 
 def load_engine(bundle: str) -> Any:
     """The bundle's OnnxEngine, or None after one line on stderr saying why it did not load."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     try:
         return OnnxEngine.load(bundle)

@@ -43,7 +43,7 @@ def test_unknown_command_and_no_command_exit_non_zero(capsys: pytest.CaptureFixt
 
 def test_embedded_bundles_are_named_by_their_folder(tmp_path, monkeypatch) -> None:
     from t2m.bundles import DEFAULT_BUNDLE, EMBEDDED_BUNDLES, resolve_bundle
-    from t2m.cli.commands.serve import model_environment
+    from t2m.service.serve_command import model_environment
 
     assert EMBEDDED_BUNDLES["default"] == DEFAULT_BUNDLE
     monkeypatch.chdir(tmp_path)

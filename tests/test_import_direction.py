@@ -15,6 +15,7 @@ removed must leave it), so it can only shrink."""
 from __future__ import annotations
 
 import ast
+import subprocess
 import sys
 from pathlib import Path
 
@@ -22,33 +23,45 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 ROOT = REPO / "t2m"
-OURS = {"motion", "model", "export", "service", "client", "cli", "bundle", "bundles", "decoding", "families"}
+OURS = {"motion", "model", "export", "service", "client", "cli", "bundle", "bundles", "decoding", "families", "runtime",
+        "api"}
 STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 
 # which of our packages each package may import (itself included)
 ALLOWED_OURS = {
     "motion": {"motion"},
     "bundle": {"bundle"},
-    "service": {"service", "motion", "bundle", "bundles", "decoding"},
-    "client": {"client"},
     "decoding": {"decoding"},
+    "client": {"client"},
+    "api": {"api", "runtime"},
+    "runtime": {"runtime", "api", "motion", "bundle", "bundles", "decoding"},
+    # the service plugs `t2m serve` into the CLI (its errors are the CLI's)
+    "service": {"service", "runtime", "api", "motion", "bundle", "bundles", "cli"},
     "model": {"model", "motion", "bundle", "decoding"},
-    # the exporter computes a bundle's caption index with the service's own text path (same features)
-    "export": {"export", "model", "motion", "bundle", "decoding", "bundles", "service"},
-    "families": {"families", "bundle", "service", "export", "model", "decoding", "motion", "bundles"},
+    # the exporter computes a bundle's caption index with the runtime's own text path (same features)
+    "export": {"export", "model", "motion", "bundle", "decoding", "bundles", "runtime", "api"},
+    "families": {"families", "bundle", "runtime", "api", "export", "model", "decoding", "motion", "bundles"},
+    # the CLI runs the runtime and the offline code; `t2m serve` is plugged in by the service (t2m.commands)
+    "cli": {"cli", "runtime", "api", "export", "model", "motion", "bundle", "bundles", "decoding"},
 }
+# no HTTP framework below the service: the runtime, the API's models and the families' served code run without one
+HTTP_FRAMEWORKS = {"fastapi", "starlette", "uvicorn"}
 DECLARATION = {"__init__", "family"}
 SERVED = {"loop", "served", "edits"}
 # what a family's declaration may import at its top level (the rest only inside its hooks)
 DECLARATION_TOP_LEVEL = {"families", "bundle"}
 DECLARATION_TOP_LEVEL_THIRD_PARTY = {"numpy"}
 # what a family's served modules may import of ours
-SERVED_OURS = {"families", "bundle", "service", "decoding", "motion"}
-NEVER = {"torch"}  # for every package but model and export, and for a family's served modules
+SERVED_OURS = {"families", "bundle", "runtime", "api", "decoding", "motion"}
+NEVER = {"torch"}  # for every package but model, export and cli, and for a family's offline modules
 MOTION_THIRD_PARTY = {"numpy"}
 GLTF_THIRD_PARTY = {"numpy", "pygltflib", "trimesh"}
 # modules outside t2m/families/ that still import a family's module: (file, imported module)
 FAMILY_CROSSINGS: set[tuple[str, str]] = {
+    ("cli/commands/importer.py", "t2m.families.diffusion.importer"),
+    ("cli/commands/importer.py", "t2m.families.gpt.import_t2m_gpt"),
+    ("cli/commands/importer.py", "t2m.families.masked.import_mogents"),
+    ("cli/commands/importer.py", "t2m.families.masked.import_momask"),
     ("export/bench/models.py", "t2m.families.gpt.export_graphs"),
     ("export/bench/models.py", "t2m.families.gpt.network"),
     ("export/evaluation.py", "t2m.families.gpt.loop"),
@@ -64,7 +77,7 @@ FAMILY_CROSSINGS: set[tuple[str, str]] = {
     ("model/networks/token_transformer.py", "t2m.families.gpt.network"),
     ("model/training/checkpoint.py", "t2m.families.gpt.network"),
     ("model/training/token_models.py", "t2m.families.gpt.training"),
-    ("service/edit_runner.py", "t2m.families.diffusion.edits"),
+    ("runtime/edit_runner.py", "t2m.families.diffusion.edits"),
     ("service/routes/edit.py", "t2m.families.diffusion.edits"),
 }
 
@@ -123,11 +136,13 @@ def violations(package: str) -> list[str]:
             name = _package_of(module)
             if name in OURS and name != "families" and name not in ALLOWED_OURS[package]:
                 found.append(f"{where}:{line} imports {name}")
-            if package not in ("model", "export") and role != "offline" and name in NEVER:
+            if package not in ("model", "export", "cli") and role != "offline" and name in NEVER:
                 found.append(f"{where}:{line} imports {name}")
             if package != "families" and name == "families" and (str(where), module) not in FAMILY_CROSSINGS:
                 found.append(f"{where}:{line} imports {module} (only the registry finds a family, by module name)")
-            if role == "served" and (name in {"model", "export"} or family_role(module) == "offline"):
+            if package != "service" and name in HTTP_FRAMEWORKS:
+                found.append(f"{where}:{line} imports {name} (HTTP lives in t2m/service/ alone)")
+            if role == "served" and (name not in SERVED_OURS and name in OURS or family_role(module) == "offline"):
                 found.append(f"{where}:{line} imports {module} (a served module imports no offline code)")
             if package == "motion" and name not in STDLIB and name not in OURS:
                 allowed = GLTF_THIRD_PARTY if path.name == "gltf.py" else MOTION_THIRD_PARTY
@@ -145,6 +160,18 @@ def violations(package: str) -> list[str]:
 def test_import_direction(package):
     assert sources(package), f"{package}/ has no Python files"
     assert violations(package) == []
+
+
+def test_the_runtime_runs_without_fastapi():
+    """Every module of the runtime, the API's models and the families' served code imported in a fresh interpreter
+    loads no HTTP framework (the import rule above reads the source; this catches what a dependency pulls in)."""
+    served = [module_name(path) for path in sources("families") if family_role(module_name(path)) != "offline"]
+    modules = [module_name(path) for package in ("runtime", "api") for path in sources(package)] + served
+    code = ("import importlib, sys\n"
+            f"for name in {modules!r}: importlib.import_module(name.removesuffix('.__init__'))\n"
+            f"print(sorted(m for m in {sorted(HTTP_FRAMEWORKS)!r} if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    assert result.stdout.strip() == "[]"
 
 
 def test_family_crossings_are_exact():
@@ -172,13 +199,13 @@ def test_the_checker_sees_nested_and_relative_imports(tmp_path, monkeypatch):
     family = tmp_path / "families" / "bad"
     family.mkdir(parents=True)
     (family / "family.py").write_text(
-        "import onnxruntime\nfrom t2m.service.engine.engine import OnnxEngine\n"
+        "import onnxruntime\nfrom t2m.runtime.engine import OnnxEngine\n"
         "def serve():\n    from t2m.families.bad.served import Codes\n")
     (family / "served.py").write_text("import torch\nfrom t2m.families.bad.network import Net\n")
     (family / "network.py").write_text("import torch\nfrom t2m.model.networks.quantizers import Q\n")
     assert violations("families") == [
         "families/bad/family.py:1 imports onnxruntime at its top level (only inside a hook)",
-        "families/bad/family.py:2 imports service at its top level (only inside a hook)",
+        "families/bad/family.py:2 imports runtime at its top level (only inside a hook)",
         "families/bad/served.py:1 imports torch",
         "families/bad/served.py:2 imports t2m.families.bad.network (a served module imports no offline code)",
     ]

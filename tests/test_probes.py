@@ -225,7 +225,7 @@ def random_bundle(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def random_engine(random_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(random_bundle, intra_op_threads=1)
 
@@ -292,7 +292,7 @@ def default_report():
     if not (DEFAULT_MODEL / "manifest.json").is_file():
         pytest.skip(f"the default model is not committed yet ({DEFAULT_MODEL / 'manifest.json'} is absent)")
     from benchmarks.probes import run_probes
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(DEFAULT_MODEL)
     guidance = engine.limits.guidance()

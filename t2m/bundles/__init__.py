@@ -4,9 +4,11 @@ family's; every embedded bundle can be named by its folder name wherever a bundl
 (`--model gpt`)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-__all__ = ["DEFAULT_BUNDLE", "EMBEDDED_BUNDLES", "GPT_BUNDLE", "resolve_bundle"]
+__all__ = ["BUNDLE_ENVIRONMENT", "DEFAULT_BUNDLE", "EMBEDDED_BUNDLES", "GPT_BUNDLE", "configured_default_bundle",
+           "resolve_bundle"]
 
 _HERE = Path(__file__).resolve().parent
 DEFAULT_BUNDLE = _HERE / "default"
@@ -21,3 +23,16 @@ def resolve_bundle(path: str | Path) -> Path:
     if not given.exists() and str(path) in EMBEDDED_BUNDLES:
         return EMBEDDED_BUNDLES[str(path)]
     return given
+
+
+# the environment variables that name the default model's bundle, first one set wins (the service's settings read
+# the same ones: t2m.service.settings.Settings.bundle_path)
+BUNDLE_ENVIRONMENT = ("T2M_BUNDLE_PATH", "T2M_MODEL_DIR")
+
+
+def configured_default_bundle() -> Path:
+    """The default model's bundle as `t2m serve` would pick it, for the commands that run without a server."""
+    for name in BUNDLE_ENVIRONMENT:
+        if os.environ.get(name):
+            return Path(os.environ[name])
+    return DEFAULT_BUNDLE

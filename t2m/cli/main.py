@@ -5,13 +5,17 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from importlib.metadata import entry_points
 
 from t2m import __version__
 
 # Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
 # `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code. Only the module of the
-# command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch.
-COMMANDS: dict[str, tuple[str, str]] = {
+# command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch. Packages that are
+# not the CLI's add their commands as entry points of the group PLUGGED_COMMANDS, each naming such a module whose
+# HELP is its one line: the HTTP service adds `t2m serve` that way, so the CLI never imports the service.
+PLUGGED_COMMANDS = "t2m.commands"
+BUILTIN_COMMANDS: dict[str, tuple[str, str]] = {
     "motion": ("t2m.cli.commands.motion", "convert between features, joints and BVH"),
     "data": ("t2m.cli.commands.data", "build a training set in HumanML3D's layout"),
     "train": ("t2m.cli.commands.train", "train the VQ-VAE, the GPT or the evaluator"),
@@ -21,10 +25,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "index-captions": ("t2m.cli.commands.index_captions", "index a bundle's training captions (unknown-text warnings)"),
     "quantize": ("t2m.cli.commands.quantize", "quantise a GPT bundle's step graph (int8 or int4 weights)"),
     "bench": ("t2m.cli.commands.bench", "benchmark generation speed"),
-    "serve": ("t2m.cli.commands.serve", "run the HTTP service"),
     "generate": ("t2m.cli.commands.generate", "generate a motion file without a server"),
     "edit": ("t2m.cli.commands.edit", "edit a saved json motion (its handle) without a server"),
 }
+
+
+
+
+def _commands() -> dict[str, tuple[str, str]]:
+    """The built-in commands, then the plugged ones (a plugged command never replaces a built-in one)."""
+    plugged = {point.name: (point.value, importlib.import_module(point.value).HELP)
+               for point in entry_points(group=PLUGGED_COMMANDS) if point.name not in BUILTIN_COMMANDS}
+    return {**BUILTIN_COMMANDS, **dict(sorted(plugged.items()))}
+
+
+COMMANDS = _commands()
 
 
 class CliError(Exception):

@@ -118,7 +118,7 @@ def check_targets(jobs: Sequence[SamplingJob], max_tokens: int) -> None:
 
 def keep_rows(step: object, past: Any, keep: np.ndarray) -> Any:
     """`past` with only the rows where `keep` is true: the step's own `keep_rows(past, keep)` when it has one (a
-    cache kept on a device, t2m.service.engine.bound_step), else the numpy default, rows along axis 2 of
+    cache kept on a device, t2m.runtime.bound_step), else the numpy default, rows along axis 2 of
     [n_layer, 2, B, n_head, P, head_dim]."""
     own = getattr(step, "keep_rows", None)
     return own(past, keep) if own is not None else past[:, :, keep]
@@ -339,7 +339,7 @@ class Cohort:
 
     def shortest_job_steps(self) -> int:
         """The size of its smallest unfinished job, in steps (its longest segment; a free one counts as max_tokens):
-        what a scheduler that runs short requests first compares (t2m.service.engine.step_order)."""
+        what a scheduler that runs short requests first compares (t2m.runtime.step_order)."""
         def size(indices: list[int]) -> int:
             targets = (self.batch.segments[s].target for s in indices)
             return max(self.max_tokens if target is None else target for target in targets)

@@ -32,7 +32,7 @@ class BundleLockstepFamily:
     batch_by_length = False
 
     def __init__(self, codes: Any, max_tokens: int, path: str, name: str = "gpt") -> None:
-        self._codes = codes        # the family's served object (t2m.service.engine.family_codes.FamilyCodes)
+        self._codes = codes        # the family's served object (t2m.runtime.family_codes.FamilyCodes)
         self.name = name
         self.max_tokens = max_tokens
         self.paths = {"bundle": path}
@@ -72,7 +72,7 @@ def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, thread
     """The evaluator and a served bundle of a family that `evaluates_bundle`, loaded by the service's loader."""
     from t2m.bundle import get_family, iter_families
     from t2m.model.training.checkpoint import load_model
-    from t2m.service.engine.bundle import load_bundle
+    from t2m.runtime.bundle_loader import load_bundle
 
     bundle = load_bundle(bundle_dir, intra_op_threads=threads)
     manifest = bundle.manifest
@@ -90,7 +90,7 @@ def load_bundle_models(evaluator_run: str | Path, bundle_dir: str | Path, thread
 
 def lockstep_bundle_models(evaluator: Any, evaluator_run: str, bundle: Any, served: Any) -> Models:
     """A GPT or T2M-HiFiGPT bundle: its text graph, step graphs (through `served`) and decoder in onnxruntime."""
-    from t2m.service.engine.text import TextEncoder, load_tokenizer
+    from t2m.runtime.text import TextEncoder, load_tokenizer
 
     manifest = bundle.manifest
     family = BundleLockstepFamily(served, manifest.max_tokens, str(bundle.path), manifest.family)

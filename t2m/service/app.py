@@ -24,16 +24,16 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from t2m import __version__
+from t2m.runtime.formats import preload as preload_formats
+from t2m.runtime.scheduling import QueuedWorkers, batcher_for
+from t2m.runtime.served_models import ModelRegistry, ServedModel, load_engines
+from t2m.runtime.step_order import step_order
+from t2m.runtime.types import Engine
 from t2m.service.dependencies import ServiceState
-from t2m.service.engine.step_order import step_order
-from t2m.service.engine.types import Engine
-from t2m.service.formats import preload as preload_formats
 from t2m.service.metrics import MetricsMiddleware, ServiceMetrics
 from t2m.service.middleware import BodySizeLimitMiddleware
-from t2m.service.registry import ModelRegistry, ServedModel, load_engines
 from t2m.service.routes import edit, generate, health, metrics
 from t2m.service.safe_json import json_safe
-from t2m.service.scheduling import QueuedWorkers, batcher_for
 from t2m.service.settings import Settings
 
 __all__ = ["app_from_env", "create_app", "load_onnx_engine"]
@@ -45,7 +45,7 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 def load_onnx_engine(settings: Settings) -> Engine:
     """The production engine: the bundle at settings.bundle_path on onnxruntime."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(settings.bundle_path, check_hashes=settings.verify_hashes,
                            intra_op_threads=settings.intra_op_threads, inter_op_threads=settings.inter_op_threads,

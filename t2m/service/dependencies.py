@@ -9,10 +9,10 @@ from typing import Literal
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from t2m.service.engine.types import Engine
+from t2m.runtime.scheduling import QueuedWorkers
+from t2m.runtime.served_models import ModelRegistry, ServedModel
+from t2m.runtime.types import Engine
 from t2m.service.metrics import ServiceMetrics
-from t2m.service.registry import ModelRegistry, ServedModel
-from t2m.service.scheduling import QueuedWorkers
 from t2m.service.settings import Settings
 
 __all__ = ["ServiceState", "get_state", "ready_state", "require_api_key"]

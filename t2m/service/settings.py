@@ -11,10 +11,10 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import AliasChoices, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from t2m.bundles import DEFAULT_BUNDLE
+from t2m.bundles import BUNDLE_ENVIRONMENT, DEFAULT_BUNDLE
 
 if TYPE_CHECKING:
-    from t2m.service.engine.execution import Execution
+    from t2m.runtime.execution import Execution
 
 __all__ = ["Settings", "default_bundle_path"]
 
@@ -38,7 +38,7 @@ class Settings(BaseSettings):
 
     bundle_path: Path = Field(
         default_factory=default_bundle_path,
-        validation_alias=AliasChoices("bundle_path", "T2M_BUNDLE_PATH", "T2M_MODEL_DIR"),
+        validation_alias=AliasChoices("bundle_path", *BUNDLE_ENVIRONMENT),
         description="Model bundle directory of the default model (env T2M_BUNDLE_PATH or T2M_MODEL_DIR); "
                     "default: the embedded t2m/bundles/default.",
     )
@@ -148,7 +148,7 @@ class Settings(BaseSettings):
     @property
     def execution(self) -> Execution:
         """The providers and the binding choice, as the bundle loader takes them."""
-        from t2m.service.engine.execution import Execution
+        from t2m.runtime.execution import Execution
 
         return Execution(tuple(self.execution_providers), self.io_binding, cuda_graphs=self.cuda_graphs,
                          graph_shapes=self.cuda_graph_shapes)

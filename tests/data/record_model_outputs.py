@@ -25,8 +25,8 @@ import sys
 
 import numpy as np
 
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 
 CASES = {
     "walk_3s_g3": GenerationRequest([SegmentRequest("a person walks forward", 3.0)], seed=123, guidance=3.0),

@@ -181,7 +181,7 @@ def test_seeded_sampling_is_the_same_through_modules_and_graphs(tmp_path):
     from t2m.families.masked.residual_transformer import ResidualTransformer
     from t2m.families.masked.sampling import generate_token_maps
     from t2m.model.networks.token_transformer import TokenTransformerConfig
-    from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+    from t2m.runtime.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
     torch.manual_seed(0)
     torch.set_num_threads(1)

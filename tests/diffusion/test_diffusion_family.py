@@ -78,7 +78,7 @@ def test_a_bad_manifest_is_refused_naming_the_field(bundles, tmp_path, edit, mes
 
 def test_a_prefix_of_the_wrong_shape_is_refused_at_load(bundles, tmp_path):
     from t2m.export.writing.bundle import files_table
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     copy = tmp_path / "bundle"
     shutil.copytree(bundles["dip"][0], copy)

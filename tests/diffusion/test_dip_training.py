@@ -117,8 +117,8 @@ def test_the_export_takes_the_ema_weights_and_the_bundle_serves(setup):
     from t2m.families.diffusion.export import export_dip_from_run
     from t2m.families.diffusion.export_graphs import denoiser_inputs
     from t2m.model.training.checkpoint import load_model
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     root, _, encoder = setup
     run = root / "falls"
@@ -166,8 +166,8 @@ def test_int8_text_export_measures_its_price_and_serves(setup):
     import json
 
     from t2m.families.diffusion.export import export_dip_from_run
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     root, _, encoder = setup
     manifest, checks = export_dip_from_run(root / "falls", root / "bundle_int8", check_parity=False,

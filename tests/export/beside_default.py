@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.service.engine.types import GenerationRequest, SegmentRequest, frames_for_duration
+from t2m.runtime.types import GenerationRequest, SegmentRequest, frames_for_duration
 from tests.service.conftest import DEFAULT_MODEL, wait_ready
 from tests.service.test_streaming_http import ROUNDING, check_stream_equals_answer, messages
 
@@ -37,7 +37,7 @@ def check_spans(answer: dict, segments: Segments) -> None:
 
 def served_alone(bundle: Path, segments: Segments, seed: int) -> np.ndarray:
     """The bundle's own motion for the request (its engine, no HTTP), at its default guidance."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
     request = GenerationRequest(segments=[SegmentRequest(t, d) for t, d in segments], seed=seed,

@@ -28,7 +28,7 @@ from t2m.families.masked.residual_transformer import ResidualTransformer
 from t2m.families.masked.sampling import TorchMaskedStep, TorchResidualStep
 from t2m.families.masked.served import draw_rows
 from t2m.motion.features import features_to_joints
-from t2m.service.engine.types import GenerationRequest, SegmentRequest, tokens_for_duration
+from t2m.runtime.types import GenerationRequest, SegmentRequest, tokens_for_duration
 
 Segments = Sequence[tuple[str, float | None]]
 FRAMES_PER_TOKEN = 4
@@ -122,7 +122,7 @@ def compare_served(bundle: Path, segments: Segments, seed: int, expected: Refere
     """The service's engine over the bundle on the same request (the model's default guidance, temperature and
     top-k): codes and segment spans must be identical; returns max |diff| of text features, decoded features and
     joints."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
     seen: list[tuple[np.ndarray, np.ndarray]] = []

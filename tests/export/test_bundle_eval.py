@@ -43,8 +43,8 @@ def bundle_and_evaluator(request, tmp_path_factory):
 def test_bundle_family_makes_the_services_motion(bundle_and_evaluator):
     """Codes from the family (one job, rows in order, the request's generator) decoded by its decoder give the
     joints the engine serves for the same sentences, durations and seed."""
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     bundle, evaluator, _ = bundle_and_evaluator
     models = load_bundle_models(evaluator, bundle)

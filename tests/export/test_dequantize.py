@@ -61,8 +61,8 @@ def test_dequantised_is_closer_to_float32_than_int8_and_a_float_graph_is_refused
 
 
 def test_an_int8_bundle_gets_float32_and_fp16_copies_and_a_float_one_is_refused(tmp_path):
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     src = build_random_bundle(tmp_path / "fp32", codebook_size=16, embed=32, n_head=2, n_layer=2)
     quantize_bundle(src, tmp_path / "int8", scheme="int8", parity=False)

@@ -37,9 +37,9 @@ def diffusion_eval(request, tmp_path_factory):
 
 def _served_features(bundle, texts, seconds, seed, guidance):
     """The engine's de-normalised features of one request (before the joints)."""
-    from t2m.service.engine.bundle import load_bundle
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.bundle_loader import load_bundle
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
     request = GenerationRequest(segments=[SegmentRequest(t, s) for t, s in zip(texts, seconds)], seed=seed,

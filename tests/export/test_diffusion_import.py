@@ -133,8 +133,8 @@ def served_over_http(client) -> None:
 def served_run(bundle: Path, denoiser=None, segments=TWO_SENTENCES, noise=None) -> tuple[np.ndarray, object]:
     """The engine's sampling of one request over the bundle's denoiser (or ``denoiser``) with injected noise (the
     given draws, else seeded ones); (normalised frames [T, F], the engine)."""
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
     codes = engine.codes
@@ -176,7 +176,7 @@ def test_the_onnx_denoiser_equals_the_imported_module_inside_a_served_run(import
 
 
 def engine_request(segments):
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     return GenerationRequest(segments=[SegmentRequest(s["text"], s["duration"]) for s in segments], seed=2,
                              guidance=2.5)

@@ -187,8 +187,8 @@ def check_clip_text_graph(bundle: Path, clip: Path) -> float:
     """The bundle's tokenizer.json + text_encoder.onnx vs our PyTorch tower read from the CLIP file; max |diff|."""
     from t2m.model.networks.clip_tokenizer import build_clip_tokenizer
     from t2m.model.networks.clip_weights import load_clip_text
-    from t2m.service.engine.bundle import load_bundle
-    from t2m.service.engine.text import TextEncoder, load_tokenizer
+    from t2m.runtime.bundle_loader import load_bundle
+    from t2m.runtime.text import TextEncoder, load_tokenizer
 
     served = load_bundle(bundle)
     tokenizer = load_tokenizer(served.tokenizer_file, served.manifest.text_max_length)
@@ -288,9 +288,9 @@ def test_cuda_graph_step_import_adds_the_fixed_step_with_the_same_codes(small_re
                                                                          tmp_path, capsys):
     """`--cuda-graph-step`: gpt_step_fixed.onnx in the bundle (hashed, checked against the manifest), serving the
     release's codes through FixedCacheGptStep when T2M_CUDA_GRAPHS is on (here on the CPU provider)."""
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.execution import Execution
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.execution import Execution
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     f = small_release
     out = tmp_path / "imported"

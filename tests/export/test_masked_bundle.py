@@ -16,8 +16,8 @@ from onnx import TensorProto, helper
 
 from t2m.bundle import BundleError, read_manifest, required_files
 from t2m.export.writing.verify import verify_bundle
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 
 
 @pytest.fixture(autouse=True)

@@ -36,7 +36,7 @@ from t2m.export.graphs.export import ort_session
 from t2m.families.masked.import_mogents import import_mogents, load_mogents, release_decoding
 from t2m.families.masked.loop import remask_counts
 from t2m.families.masked.mogents_files import locate_release
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
 SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}
@@ -198,7 +198,7 @@ def graph_logits(bundle: Path, release: Release) -> dict[str, np.ndarray]:
 def served_token_maps(bundle: Path, lengths: list[int], seed: int = 3) -> tuple[list[np.ndarray], np.ndarray]:
     """The service's engine on one request with a segment per length, top-k 1 in every stage of both branches:
     (each segment's joined map [rows, 6 + 1, 6], the text features it used)."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
     codes = engine.codes

@@ -34,7 +34,7 @@ from t2m.families.masked.import_momask import import_momask, load_momask, releas
 from t2m.families.masked.loop import remask_counts
 from t2m.families.masked.momask_files import kit_fps_note, locate_release
 from t2m.families.masked.sampling import generate_token_maps
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
 
 SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}   # MoMask's 512-d text features, a small tower
@@ -157,7 +157,7 @@ def check_graph_logits(release: Release, bundle: Path) -> dict[str, float]:
 def served_token_maps(bundle: Path, lengths: list[int], seed: int = 3) -> tuple[list[np.ndarray], np.ndarray]:
     """The service's engine on one request with a segment per length (duration = rows * 4 / 20 s), top-k 1 on both
     stages: (each segment's map [rows, 1, 6], the text features it used)."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(bundle, intra_op_threads=1)
     codes = engine.codes

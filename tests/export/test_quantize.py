@@ -83,8 +83,8 @@ def test_int8_parity_passes_the_quantised_graph_and_fails_a_wrong_one(tmp_path):
 
 
 def test_int8_bundle_copy_is_verified_and_served_like_its_float32_original(tmp_path):
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     src = build_random_bundle(tmp_path / "fp32", codebook_size=16, embed=32, n_head=2, n_layer=2)
     manifest = quantize_bundle_gpt(src, tmp_path / "int8", version="0.0.1")
@@ -178,8 +178,8 @@ def test_int4_step_is_smaller_close_to_float32_and_a_wrongly_scaled_copy_is_caug
 
 def test_quantize_cli_writes_a_served_int4_copy_and_refuses_what_it_cannot_do(tmp_path, capsys):
     from t2m.cli.main import main
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     src = build_random_bundle(tmp_path / "fp32", codebook_size=16, embed=32, n_head=2, n_layer=2)
     assert main(["quantize", str(src), "-o", str(tmp_path / "int4"), "--scheme", "int4", "--version", "0.0.2"]) == 0

@@ -30,9 +30,9 @@ def _initializer_types(path) -> set[int]:
 
 
 def test_fp16_converts_the_replayed_step_and_measures_it_as_served(fixed_bundle, tmp_path):
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.execution import Execution
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.execution import Execution
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     out = tmp_path / "fp16"
     manifest, report = quantize_bundle(fixed_bundle, out, scheme="fp16", runs=2)

@@ -88,8 +88,8 @@ def test_the_shipped_int8_token_graphs_are_per_row(name):
 def test_a_shipped_models_request_is_the_same_alone_and_in_a_batch(name):
     """The bug per-tensor activations had: the default 0.3.0 moved a request's joints by up to 1.4 m, the masked
     0.2.0 by up to 1.8 m."""
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     engine = OnnxEngine.load(DEFAULT_BUNDLE.parent / name, intra_op_threads=1)
     texts = ["a person walks forward", "a person jumps high", "someone kicks with the right leg", "a person waves"]

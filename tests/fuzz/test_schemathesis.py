@@ -32,10 +32,10 @@ API_KEY = "fuzz-test-key"
 AUTH = {"Authorization": f"Bearer {API_KEY}"}
 # The rules beyond the schema (service/schemas.py model_limit_errors, unknown_model_error, the total-duration and the
 # stream-only-as-json validators).
-# POST /edit: a handle is opaque to the schema (its checks, t2m/service/handles.py, all name `handle`), and so are
+# POST /edit: a handle is opaque to the schema (its checks, t2m/runtime/handles.py, all name `handle`), and so are
 # the edits' limits that depend on it (a segment it lacks, the edited motion's length, the family's edit kinds).
 # An uploaded `motion`: one source of joints or bvh, one of handle or motion, what the frames and segments make, the
-# BVH text and skeleton, a model without an encoder graph (t2m/service/uploads.py).
+# BVH text and skeleton, a model without an encoder graph (t2m/runtime/uploads.py).
 RULES_BEYOND_SCHEMA = ("total duration", "codebook size", "this model makes at most", "no model named",
                        "only the json format streams", "handle", "the edited motion would", "the edits it supports",
                        "edited twice", "exactly one", "goes with `joints`", "joints; model", "fps last",

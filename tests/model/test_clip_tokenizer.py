@@ -132,7 +132,7 @@ def test_truncation_keeps_the_end_token_last_and_padding_is_zero(tokenizer):
 
 
 def test_saved_file_is_what_the_service_loads(tmp_path, tokenizer):
-    from t2m.service.engine.text import load_tokenizer
+    from t2m.runtime.text import load_tokenizer
 
     path = save_clip_tokenizer(tmp_path / "tokenizer.json")
     served = load_tokenizer(path, max_length=77)

@@ -92,7 +92,7 @@ def bundle_without_uncond(random_bundle: Path, tmp_path_factory: pytest.TempPath
 
 @pytest.fixture(scope="session")
 def onnx_engine(random_bundle: Path):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(random_bundle, intra_op_threads=1)
 

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from t2m.motion.skeleton import SMPL22
-from t2m.service.engine.types import (
+from t2m.runtime.types import (
     GenerationCancelled,
     GenerationRequest,
     ModelLimits,

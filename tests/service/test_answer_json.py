@@ -1,4 +1,4 @@
-"""The json answers and stream lines (t2m/service/formats.py) are written by orjson: the same numbers, byte for byte,
+"""The json answers and stream lines (t2m/runtime/formats.py) are written by orjson: the same numbers, byte for byte,
 as json.dumps wrote them, and text orjson refuses (a lone surrogate) still gives valid JSON."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from t2m.service.formats import frames_json, ndjson, stream_frames
+from t2m.runtime.formats import frames_json, ndjson, stream_frames
 
 
 def test_frames_are_the_bytes_json_dumps_wrote():

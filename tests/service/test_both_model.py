@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from t2m.bundles import DEFAULT_BUNDLE, EMBEDDED_BUNDLES
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 
 BOTH = EMBEDDED_BUNDLES["both"]
 SEEDS = (0, 1, 2, 3, 4)
@@ -15,7 +15,7 @@ SEEDS = (0, 1, 2, 3, 4)
 
 @pytest.fixture(scope="module")
 def both_engine():
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(BOTH, intra_op_threads=1)          # verifies every file's sha256
 
@@ -28,7 +28,7 @@ def test_the_bundle_shares_the_text_files_but_not_the_caption_index():
 
 
 def test_it_knows_the_cmu_actions_the_default_warns_about(both_engine):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     request = GenerationRequest(segments=[SegmentRequest("a person jumps up and down", 2.0),
                                           SegmentRequest("someone does a cartwheel", 2.0)], seed=0, guidance=3.0)

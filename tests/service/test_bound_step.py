@@ -12,10 +12,10 @@ import pytest
 from t2m.decoding.lockstep import SamplingJob, keep_rows
 from t2m.families.gpt.loop import GptCohort
 from t2m.families.hifigpt.loop import HiFiGPTCohort
-from t2m.service.engine.bound_step import KEEP_ROWS_GRAPH, BoundGptStep, BoundTemporalStep, host_cache
-from t2m.service.engine.execution import Execution
-from t2m.service.engine.onnx_step import OnnxGptStep, OnnxTemporalStep
-from t2m.service.engine.types import GenerationRequest, Motion, SegmentRequest
+from t2m.runtime.bound_step import KEEP_ROWS_GRAPH, BoundGptStep, BoundTemporalStep, host_cache
+from t2m.runtime.execution import Execution
+from t2m.runtime.onnx_step import OnnxGptStep, OnnxTemporalStep
+from t2m.runtime.types import GenerationRequest, Motion, SegmentRequest
 from tests.service.conftest import REPO
 
 BOUND = Execution(("cpu",), io_binding="on")
@@ -24,7 +24,7 @@ BOUND = Execution(("cpu",), io_binding="on")
 @pytest.fixture(scope="module")
 def engines(random_bundle, hifigpt_bundle):
     """family -> (the numpy engine, the bound engine) on the same bundle."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     def pair(path):
         return (OnnxEngine.load(path, intra_op_threads=1),

@@ -1,4 +1,4 @@
-"""The service's bundle loader (t2m.service.engine.bundle on the t2m.bundle contract) refuses broken bundles with a
+"""The service's bundle loader (t2m.runtime.bundle_loader on the t2m.bundle contract) refuses broken bundles with a
 BundleError naming the file or field."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper
 
-from t2m.service.engine.bundle import BundleError, load_bundle
+from t2m.runtime.bundle_loader import BundleError, load_bundle
 
 
 @pytest.fixture

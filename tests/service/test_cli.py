@@ -116,7 +116,7 @@ def test_serve_command_runs_the_service(random_bundle):
 def test_serve_model_default_is_the_embedded_model(tmp_path):
     """`t2m serve --model default --model DIR`: the embedded model first (the default), DIR beside it."""
     from t2m.bundles import DEFAULT_BUNDLE
-    from t2m.cli.commands.serve import model_environment
+    from t2m.service.serve_command import model_environment
 
     assert model_environment([Path("default"), tmp_path / "momask"]) == {
         "T2M_BUNDLE_PATH": str(DEFAULT_BUNDLE), "T2M_EXTRA_MODEL_DIRS": str((tmp_path / "momask").resolve())}

@@ -9,16 +9,16 @@ from concurrent.futures import Future
 import numpy as np
 import pytest
 
-from t2m.service.engine.step_order import EveryCohort, ShortestFirst, step_order
-from t2m.service.engine.types import GenerationCancelled, GenerationRequest, Motion, SegmentRequest
-from t2m.service.scheduling import ContinuousBatcher, MicroBatcher, batcher_for
+from t2m.runtime.scheduling import ContinuousBatcher, MicroBatcher, batcher_for
+from t2m.runtime.step_order import EveryCohort, ShortestFirst, step_order
+from t2m.runtime.types import GenerationCancelled, GenerationRequest, Motion, SegmentRequest
 from tests.service.fakes import FakeEngine
 
 
 @pytest.fixture(scope="module", params=["gpt", "hifigpt"])
 def engine(request, onnx_engine, hifigpt_bundle):
     """Each autoregressive family's engine (the GPT: 4 frames per step; T2M-HiFiGPT: 8, three code depths)."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return onnx_engine if request.param == "gpt" else OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
 
@@ -151,7 +151,7 @@ def test_continuous_batching_is_a_setting_and_only_for_engines_that_can(onnx_eng
 
 def test_the_masked_family_keeps_run_to_completion_batches(masked_bundle):
     """Not autoregressive (a few whole-map passes): nothing to join between steps, so no continuous session."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     masked = OnnxEngine.load(masked_bundle, intra_op_threads=1)
     assert masked.continuous() is None
@@ -245,7 +245,7 @@ def test_a_boundary_ends_early_for_a_waiting_short_request_but_never_holds_a_coh
 def test_hifigpt_cohorts_of_different_ages_share_the_residual_calls(hifigpt_bundle):
     """T2M-HiFiGPT: at a boundary every stepping cohort makes its own temporal call (its own position), then the
     residual GPT's R calls run once for all their rows; the motions are still the ones alone."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
     alone = {"long": engine.generate(_long()), "short": engine.generate(_short())}

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.execution import Execution
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.execution import Execution
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 from t2m.service.settings import Settings
 
 REQUEST = GenerationRequest([SegmentRequest("a person walks forward", 2.0), SegmentRequest("a person bows", 1.5)],
@@ -35,7 +35,7 @@ def test_the_replayed_graphs_give_the_plain_engines_motion(masked_model):
 def test_a_graph_onnxruntime_will_not_capture_is_served_without(masked_model, monkeypatch, caplog):
     """An older export (Range or an attention scale fed by Shape) makes onnxruntime refuse the session with
     enable_cuda_graph; the service warns and serves the graph plainly."""
-    import t2m.service.engine.bundle as bundle_module
+    import t2m.runtime.bundle_loader as bundle_module
 
     def refuse(*args, **kwargs):
         raise RuntimeError("[ONNXRuntimeError] : 1 : FAIL : This session cannot use the graph capture feature")
@@ -78,8 +78,8 @@ GPT_REQUESTS = [GenerationRequest([SegmentRequest("a person walks forward", 2.0)
 def test_the_gpt_familys_fixed_step_serves_with_cuda_graphs_only(fixed_step_bundle):
     """Listed and verified like any bundle file, opened only with T2M_CUDA_GRAPHS; then the cohorts step through
     FixedCacheGptStep and give the plain step's motions (the same codes on the CPU provider)."""
-    from t2m.service.engine.graphed_step import FixedCacheGptStep
-    from t2m.service.engine.onnx_step import OnnxGptStep
+    from t2m.runtime.graphed_step import FixedCacheGptStep
+    from t2m.runtime.onnx_step import OnnxGptStep
 
     plain = OnnxEngine.load(fixed_step_bundle, intra_op_threads=1)
     fixed = OnnxEngine.load(fixed_step_bundle, intra_op_threads=1, execution=Execution(cuda_graphs=True))
@@ -97,8 +97,8 @@ def test_the_gpt_familys_fixed_step_serves_with_cuda_graphs_only(fixed_step_bund
 
 
 def test_a_fixed_step_onnxruntime_will_not_capture_leaves_the_plain_step(fixed_step_bundle, monkeypatch, caplog):
-    import t2m.service.engine.bundle as bundle_module
-    from t2m.service.engine.onnx_step import OnnxGptStep
+    import t2m.runtime.bundle_loader as bundle_module
+    from t2m.runtime.onnx_step import OnnxGptStep
 
     def refuse(*args, **kwargs):
         raise RuntimeError("[ONNXRuntimeError] : 1 : FAIL : This session cannot use the graph capture feature")

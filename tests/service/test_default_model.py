@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 
 
 @pytest.fixture(scope="module")
 def default_engine(default_model):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(default_model)          # verifies every file's sha256
 
@@ -60,7 +60,7 @@ def test_default_model_bvh_round_trip(default_engine):
     from t2m.motion.bvh import read_bvh
     from t2m.motion.bvh_export import bvh_joint_names
     from t2m.motion.skeleton import SMPL22
-    from t2m.service.formats import motion_bvh
+    from t2m.runtime.formats import motion_bvh
 
     motion = default_engine.generate(GenerationRequest(segments=[SegmentRequest("a person turns around", 4.0)],
                                                        seed=1, guidance=1.0))

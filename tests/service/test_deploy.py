@@ -119,7 +119,7 @@ def test_runtime_imports_need_no_torch():
     code = ("import sys; sys.modules['torch'] = None\n"
             "from t2m.cli.main import build_parser; build_parser('serve'); build_parser('generate'); "
             "build_parser('motion')\n"
-            "import t2m.service.app, t2m.service.engine.engine, t2m.service.formats, t2m.motion.gltf, "
+            "import t2m.service.app, t2m.runtime.engine, t2m.runtime.formats, t2m.motion.gltf, "
             "t2m.motion.bvh_export, t2m.client\n"
             "print('ok')")
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)

@@ -31,13 +31,13 @@ def bundles(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def engines(bundles):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return {name: OnnxEngine.load(bundles / name, intra_op_threads=1) for name in ("mdm", "dip", "mdm-unmasked")}
 
 
 def request(seed: int = 11, segments=STREAM, **options):
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     return GenerationRequest(segments=[SegmentRequest(s["text"], s["duration"]) for s in segments], seed=seed,
                              guidance=options.pop("guidance", 2.5), **options)
@@ -194,8 +194,8 @@ def test_with_cuda_graphs_the_denoiser_is_replayed_and_gives_the_plain_motion(bu
     shape per distinct call; the 2022 MDM without frame masks crops per length). The exported denoisers have no
     host copy inside a run, so onnxruntime can capture them on a GPU (t2m/export/graphs/capture_check.py)."""
     from t2m.export.graphs.capture_check import capture_blockers
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.execution import Execution
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.execution import Execution
 
     replayed = OnnxEngine.load(bundles / name, intra_op_threads=1, execution=Execution(cuda_graphs=True))
     assert list(replayed.bundle.replays) == ["denoiser.onnx"]

@@ -17,10 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.timeline import segment_maps
-from t2m.service.engine.types import GenerationRequest, SegmentRequest, frames_for_duration
-from t2m.service.handles import (
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.handles import (
     CHECKSUM_BYTES,
     HANDLE_PREFIX,
     HandleError,
@@ -28,6 +26,8 @@ from t2m.service.handles import (
     read_handle,
     segment_seed,
 )
+from t2m.runtime.timeline import segment_maps
+from t2m.runtime.types import GenerationRequest, SegmentRequest, frames_for_duration
 from t2m.service.settings import Settings
 
 THREE = [("a person walks forward", 3.0), ("a person waves", 2.0), ("a person bows", 3.0)]

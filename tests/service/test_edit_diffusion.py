@@ -21,15 +21,15 @@ import pytest
 import torch
 from test_edit import assert_rigidly_moved
 
+from t2m.api.schemas import EditRequest
 from t2m.families.diffusion.edits import edit_recipe, replay
 from t2m.families.diffusion.loop import numbered_join_windows
 from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
-from t2m.service.editing import EditError
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
-from t2m.service.handles import HandleError, handle_model, make_handle, segment_seed
-from t2m.service.recipes import MAX_EDIT_STEPS, RECIPE_PREFIX, read_recipe
-from t2m.service.schemas import EditRequest
+from t2m.runtime.editing import EditError
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.handles import HandleError, handle_model, make_handle, segment_seed
+from t2m.runtime.recipes import MAX_EDIT_STEPS, RECIPE_PREFIX, read_recipe
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 from t2m.service.settings import Settings
 
 torch.set_num_threads(1)
@@ -356,7 +356,7 @@ def test_an_edit_past_its_time_limit_is_a_504_and_queued_work_past_its_deadline_
     import threading
     import time
 
-    from t2m.service.scheduling import GenerationTimeout, SerialWork
+    from t2m.runtime.scheduling import GenerationTimeout, SerialWork
 
     client = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1, request_timeout_s=1e-4))
     handle = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1)).post(

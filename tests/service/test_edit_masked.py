@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from test_edit import THREE, assert_rigidly_moved, edit, generate, guaranteed_prefix, request_of
 
-from t2m.service.editing import EditError, edit_in_process, plan_edit
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.reach import probe_reach
-from t2m.service.handles import make_handle, read_handle, segment_seed
-from t2m.service.schemas import EditRequest
+from t2m.api.schemas import EditRequest
+from t2m.runtime.editing import EditError, edit_in_process, plan_edit
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.handles import make_handle, read_handle, segment_seed
+from t2m.runtime.reach import probe_reach
 from t2m.service.settings import Settings
 
 

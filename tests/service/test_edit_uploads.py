@@ -17,9 +17,9 @@ import pytest
 from t2m.motion.bvh import read_bvh
 from t2m.motion.bvh_export import CM_PER_METRE, bvh_joint_names
 from t2m.motion.features import joints_to_features, normalize_joints
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.reach import probe_reach
-from t2m.service.handles import read_handle
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.handles import read_handle
+from t2m.runtime.reach import probe_reach
 from t2m.service.settings import Settings
 
 WALK = [{"text": "a person walks forward", "duration": 3.0}]

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
+from t2m.runtime.types import GenerationRequest, RequestLimitError, SegmentRequest
 
 
 def _request(seed=1, guidance=3.0, durations=(3.0, None, 0.5), **options) -> GenerationRequest:
@@ -55,7 +55,7 @@ def test_cancelled_request_is_not_generated(onnx_engine):
 
 
 def test_guidance_without_unconditional_branch_is_flagged(bundle_without_uncond):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(bundle_without_uncond, intra_op_threads=1)
     assert engine.limits.unconditional_branch is False

@@ -7,7 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from t2m.cli.main import main
-from t2m.service.engine.execution import Execution, ProviderError, check_available, ort_providers
+from t2m.runtime.execution import Execution, ProviderError, check_available, ort_providers
 from t2m.service.settings import Settings
 
 HAS_CUDA = "CUDAExecutionProvider" in ort.get_available_providers()
@@ -69,7 +69,7 @@ def test_a_session_that_fell_back_to_cpu_is_refused():
 
 @pytest.mark.skipif(HAS_CUDA, reason="this onnxruntime has CUDA: nothing to refuse")
 def test_loading_a_bundle_on_a_missing_provider_fails_before_any_session(random_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     with pytest.raises(ProviderError, match="T2M_EXECUTION_PROVIDERS=cuda"):
         OnnxEngine.load(random_bundle, execution=Execution(("cuda",)))
@@ -102,10 +102,10 @@ def test_int8_step_graphs_on_a_gpu_provider_name_the_float_copy_to_serve(caplog)
     import logging
 
     from t2m.bundles import DEFAULT_BUNDLE
-    from t2m.service.engine.bundle import _warn_int8_on_gpu
+    from t2m.runtime.bundle_loader import _warn_int8_on_gpu
 
     raw = json.loads((DEFAULT_BUNDLE / "manifest.json").read_text())
-    with caplog.at_level(logging.WARNING, logger="t2m.service.engine.bundle"):
+    with caplog.at_level(logging.WARNING, logger="t2m.runtime.bundle_loader"):
         _warn_int8_on_gpu(raw, DEFAULT_BUNDLE, Execution(("cpu",)))
         assert not caplog.records                                   # CPU: int8 is the fast rule there
         _warn_int8_on_gpu({**raw, "quantization": {"text_encoder": "int8-dynamic"}}, DEFAULT_BUNDLE,

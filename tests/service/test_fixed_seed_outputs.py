@@ -32,8 +32,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
 from record_model_outputs import CASES, record
 
-from t2m.service.engine.timeline import fit_frames
-from t2m.service.engine.types import frames_for_duration
+from t2m.runtime.timeline import fit_frames
+from t2m.runtime.types import frames_for_duration
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 EXACT_SPANS = {"walk_3s_g3": [[0, 60]], "stream_g3": [[0, 60], [60, 100], [100, 140]]}
@@ -70,7 +70,7 @@ def recordings(stem: str) -> list[Path]:
                                          ("default_model", "default_model_outputs"),
                                          ("masked_model", "masked_model_outputs")])
 def test_model_outputs_match_the_recording(model, stem, request):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(request.getfixturevalue(model), intra_op_threads=1)
     served = record(engine)

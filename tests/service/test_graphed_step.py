@@ -17,8 +17,8 @@ from t2m.families.gpt.export_graphs import export_gpt_fixed_cache_step, export_g
 from t2m.families.gpt.fixed_cache import empty_fixed_cache, fixed_cache_step
 from t2m.families.gpt.loop import GptCohort
 from t2m.families.gpt.network import GPTConfig, MotionGPT
-from t2m.service.engine.graphed_step import FixedCacheGptStep, GraphedSession, graph_session
-from t2m.service.engine.onnx_step import OnnxGptStep
+from t2m.runtime.graphed_step import FixedCacheGptStep, GraphedSession, graph_session
+from t2m.runtime.onnx_step import OnnxGptStep
 
 MAX_TOKENS = 12
 

@@ -10,7 +10,7 @@ import httpx
 import numpy as np
 import pytest
 
-from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
+from t2m.runtime.types import GenerationRequest, RequestLimitError, SegmentRequest
 from tests.service.conftest import LiveServer
 
 STREAM = [("a person walks forward", 1.2), ("a person waves with the right hand", 0.8), ("a person bows", 2.0)]
@@ -19,7 +19,7 @@ STEPS = [3, 2, 5]   # round(duration * 20 / 8)
 
 @pytest.fixture(scope="module")
 def engine(hifigpt_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
 
@@ -62,7 +62,7 @@ def test_broken_manifests_are_refused_naming_the_field(hifigpt_bundle, tmp_path,
     import shutil
 
     from t2m.bundle import BundleError
-    from t2m.service.engine.bundle import load_bundle
+    from t2m.runtime.bundle_loader import load_bundle
 
     copy = tmp_path / "broken"
     shutil.copytree(hifigpt_bundle, copy)

@@ -195,7 +195,7 @@ class _FailingEngine(FakeEngine):
 
 
 def test_engine_limit_error_is_422_naming_the_field(make_client):
-    from t2m.service.engine.types import RequestLimitError
+    from t2m.runtime.types import RequestLimitError
 
     error = RequestLimitError("segments.0.duration: needs 60 tokens, the model makes at most 50")
     client = make_client(Settings(), engine_factory=lambda s: _FailingEngine(error))
@@ -214,8 +214,8 @@ def test_model_failure_is_500_not_422(make_client):
 def test_a_request_in_its_batch_window_counts_as_in_flight():
     """A request a worker has taken but not yet started (its batch window is open) is in no queue: the in-flight
     gauge must hold it, or a busy replica reads idle on /metrics (found by the deploy suite's drain test)."""
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
-    from t2m.service.scheduling import MicroBatcher
+    from t2m.runtime.scheduling import MicroBatcher
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     engine = FakeEngine()
     batcher = MicroBatcher(engine, window_s=1.0)

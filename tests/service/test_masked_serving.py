@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
+from t2m.runtime.types import GenerationRequest, RequestLimitError, SegmentRequest
 
 STREAM = [("a person walks forward", 1.0), ("a person waves with the right hand", 0.8), ("a person bows", 0.6)]
 
@@ -25,7 +25,7 @@ def masked_1d_bundle(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def engine(masked_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(masked_bundle, intra_op_threads=1)
 
@@ -51,7 +51,7 @@ def decoded(engine, monkeypatch) -> list[np.ndarray]:
 
 def test_both_variants_load_and_verify(masked_bundle, masked_1d_bundle):
     from t2m.export.writing.verify import verify_bundle
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     for bundle in (masked_bundle, masked_1d_bundle):
         verify_bundle(bundle)
@@ -110,7 +110,7 @@ def test_a_null_duration_is_drawn_from_the_length_graph_with_the_seed(engine):
 
 
 def test_a_null_duration_without_a_length_graph_is_refused(masked_1d_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(masked_1d_bundle, intra_op_threads=1)
     with pytest.raises(RequestLimitError, match=r"^segments\.1\.duration: model .* has no length estimator"):
@@ -167,7 +167,7 @@ def test_a_gpt_and_a_masked_bundle_served_together(random_bundle, masked_bundle,
 def test_the_1d_variant_serves_the_pytorch_reference_tokens(masked_1d_bundle, monkeypatch):
     from t2m.families.masked.random_bundle import random_masked_models
     from t2m.families.masked.sampling import generate_token_maps
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(masked_1d_bundle, intra_op_threads=1)
     calls: list[np.ndarray] = []

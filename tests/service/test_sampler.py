@@ -151,7 +151,7 @@ def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
     import torch
 
     from t2m.families.gpt.sampling import sample_codes as torch_sample_codes
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     path, gpt = torch_bundle
     engine = OnnxEngine.load(path, intra_op_threads=1)
@@ -172,7 +172,7 @@ def test_seeded_sampling_matches_pytorch_reference(torch_bundle, guidance, tempe
     """Not only greedy: with the same seed, the service (onnxruntime) and the PyTorch reference draw the same codes,
     because both run one loop (t2m.families.gpt.loop) and their logits agree to ~1e-6."""
     from t2m.families.gpt.sampling import sample_codes as torch_sample_codes
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     path, gpt = torch_bundle
     engine = OnnxEngine.load(path, intra_op_threads=1)

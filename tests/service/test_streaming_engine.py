@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from t2m.service.engine.reach import DecoderReach
-from t2m.service.engine.types import GenerationRequest, SegmentRequest
+from t2m.runtime.reach import DecoderReach
+from t2m.runtime.types import GenerationRequest, SegmentRequest
 
 # onnxruntime picks its convolution kernels by sequence length, so a window decodes the same frames as the whole
 # motion up to ~1e-6 (measured: at most 2.9e-6 m on the default model's joints)
@@ -63,7 +63,7 @@ def graph_reach(decoder_onnx: Path, tokens: int = 96) -> DecoderReach:
 @pytest.fixture(scope="module")
 def gpt_engine(gpt_model):
     """The embedded GPT model: its decoder (reach 22 codes, 4 frames each) lets a 10 s motion stream early frames."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(gpt_model, check_hashes=False, intra_op_threads=1)
 
@@ -95,7 +95,7 @@ def test_the_default_decoder_looks_3_steps_ahead_and_35_back_as_its_graph_says(d
     (its 0.2 decoder: 25, as many as a 10 s motion has): a one-sentence motion streams early frames. It looks 35 steps
     back, not the 48 its kernels span: the t - 18 taps of the dilation-9 blocks of the first two levels never lay
     inside a 64-frame training window (8 and 16 positions), so they kept their zero start (train_vq_decoder)."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
     assert engine.reach == graph_reach(default_model / "decoder.onnx") == DecoderReach(ahead=3, behind=35)
@@ -113,7 +113,7 @@ def test_the_default_model_streams_exact_durations_early_equal_to_the_whole(defa
     """8 frames a step: 9.9 s is 25 steps, 200 decoded frames fitted to 198 (engine/timeline.py). The first step's 8
     decoded frames are final once step 4 is sampled and complete the first 7 fitted frames (frame 6 samples decoded
     time 6 * 199 / 197 < 7), which go out at once; the stream put together is the whole answer, spans exact."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(default_model, check_hashes=False, intra_op_threads=1)
     chunks, streamed, whole = _streamed(engine, segments)
@@ -208,7 +208,7 @@ def test_a_failing_frame_sink_does_not_fail_the_generation(gpt_engine):
 
 
 def test_the_masked_family_sends_its_frames_only_with_the_whole_motion(masked_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(masked_bundle, intra_op_threads=1)
     assert engine.reach is None
@@ -221,7 +221,7 @@ def test_the_masked_family_sends_its_frames_only_with_the_whole_motion(masked_bu
 def test_a_hifigpt_bundle_streams_early_frames_equal_to_the_unstreamed_motion(hifigpt_bundle):
     """T2M-HiFiGPT's decoder reads a row of R codes per step: the probe changes a whole row, and finds its graph's
     bound; its loop reports each position's rows, so frames go early as for the GPT family."""
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(hifigpt_bundle, intra_op_threads=1)
     assert engine.reach == graph_reach(hifigpt_bundle / "decoder.onnx")
@@ -238,7 +238,7 @@ def test_a_causal_decoder_looks_three_steps_ahead_and_streams_a_one_sentence_mot
     and the k=3 convolutions after each x2 level), fewer than the same decoder without causal blocks, and a motion of
     one sentence gets early frames equal to its whole decode."""
     from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     bundle = build_random_hifigpt_bundle(tmp_path / "causal", depth=3, codebook_size=16, seed=2,
                                          causal_decoder_blocks=True)

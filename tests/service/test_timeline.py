@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.service.engine.timeline import FittedSink, Timeline, fit_frames
-from t2m.service.engine.types import frames_for_duration
+from t2m.runtime.timeline import FittedSink, Timeline, fit_frames
+from t2m.runtime.types import frames_for_duration
 
 
 def _ramp(length: int) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from t2m.bundle import BundleError, CaptionIndex
-from t2m.service.engine.types import GenerationRequest, RequestLimitError, SegmentRequest
+from t2m.runtime.types import GenerationRequest, RequestLimitError, SegmentRequest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "model"))
 
@@ -58,7 +58,7 @@ def test_threshold_choice_and_rates():
 
 @pytest.fixture(scope="module")
 def default_engine(default_model):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     return OnnxEngine.load(default_model, intra_op_threads=1)
 
@@ -74,7 +74,7 @@ def test_default_model_warns_about_actions_it_never_saw(default_engine):
 
 
 def test_reject_mode_refuses_with_the_segment_named(default_model):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(default_model, intra_op_threads=1, unknown_text="reject")
     with pytest.raises(RequestLimitError, match=r"^segments\.1\.text: 'someone climbs up a ladder'"):
@@ -125,7 +125,7 @@ def test_api_answers_200_with_the_warning_or_422_when_asked(default_model):
 
 
 def test_bundle_without_index_says_so(random_bundle):
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(random_bundle, intra_op_threads=1)
     assert engine.limits.details["unknown_text"]["detection"] == "off"
@@ -138,7 +138,7 @@ def test_index_captions_command_writes_a_verified_indexed_bundle(random_bundle, 
 
     from t2m.cli.main import main
     from t2m.export.writing.verify import verify_bundle
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     bundle = tmp_path / "bundle"
     shutil.copytree(random_bundle, bundle)
@@ -174,7 +174,7 @@ def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp
     from t2m.export.writing.caption_index import encode_with_bundle, training_captions
     from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
     from t2m.families.diffusion.served import encode_token_states, pooled_token_states
-    from t2m.service.engine.engine import OnnxEngine
+    from t2m.runtime.engine import OnnxEngine
 
     bundle = tmp_path / "dip"
     build_random_diffusion_bundle(bundle, arch="dip", seed=1)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import pytest
 from fakes import FakeEngine
 
-from t2m.service.engine.types import frames_for_duration, tokens_for_duration
-from t2m.service.schemas import GenerateRequest, to_generation_request
+from t2m.api.schemas import GenerateRequest, to_generation_request
+from t2m.runtime.types import frames_for_duration, tokens_for_duration
 from t2m.service.settings import Settings
 
 OK = {"text": "a person walks forward", "duration": 3.0}
@@ -133,7 +133,7 @@ def test_openapi_is_generated_from_the_schemas(client):
 
 
 def test_model_limits_resolve_the_guidance_default():
-    from t2m.service.engine.types import ModelLimits
+    from t2m.runtime.types import ModelLimits
 
     guided = ModelLimits(name="m", version="1", fps=20, frames_per_token=4, max_tokens=50, codebook_size=512,
                          default_guidance=3.0, unconditional_branch=True)

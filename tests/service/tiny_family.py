@@ -19,7 +19,7 @@ from t2m.bundle import Capabilities, ModelFamily
 from t2m.bundle.family import FieldRule
 from t2m.bundle.graphs import FLOAT32, INT64, GraphSpec, TensorSpec, features_output
 from t2m.bundle.manifest import COMMON_FILES, POSITIVE, is_bool, is_number
-from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+from t2m.runtime.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
 
 CODES_GRAPH = "fourth_codes.onnx"
 

@@ -1,5 +1,5 @@
 """`t2m edit`: a json motion saved from /generate, /edit or `t2m generate` with some segments changed, on this
-machine, no server needed (POST /edit's path: t2m.service.editing.edit_in_process).
+machine, no server needed (POST /edit's path: t2m.runtime.editing.edit_in_process).
 
     t2m edit walk_wave_bow.json --segment 1 --text "a person raises the left hand" -o edited.json
     t2m edit walk_wave_bow.json --segment 2 --seed 7 -o bow7.bvh
@@ -87,9 +87,9 @@ def _source(path: Path) -> dict[str, Any]:
 def _edit(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
+    from t2m.api.schemas import EditRequest
     from t2m.cli.commands.generate import _one_line
     from t2m.cli.main import CliError
-    from t2m.service.schemas import EditRequest
 
     fmt = FORMATS.get(args.output.suffix.lower())
     if fmt is None:
@@ -101,16 +101,16 @@ def _edit(args: argparse.Namespace) -> int:
     if not args.output.parent.exists():
         raise CliError(f"{args.output.parent}: output directory does not exist")
 
-    from t2m.service.edit_runner import edit_with_engine
-    from t2m.service.editing import EditError
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.types import RequestLimitError
-    from t2m.service.formats import render
-    from t2m.service.handles import HandleError
-    from t2m.service.settings import Settings
-    from t2m.service.uploads import uploaded_handle
+    from t2m.bundles import configured_default_bundle
+    from t2m.runtime.edit_runner import edit_with_engine
+    from t2m.runtime.editing import EditError
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.formats import render
+    from t2m.runtime.handles import HandleError
+    from t2m.runtime.types import RequestLimitError
+    from t2m.runtime.uploads import uploaded_handle
 
-    engine = OnnxEngine.load(args.model if args.model is not None else Settings().bundle_path)
+    engine = OnnxEngine.load(args.model if args.model is not None else configured_default_bundle())
     try:
         handle = body.handle if body.motion is None else uploaded_handle(body.motion, engine.limits, engine.encode)
         assert handle is not None

@@ -91,8 +91,8 @@ def _one_line(errors: Sequence[Mapping[str, Any]]) -> str:
 def _generate(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
+    from t2m.api.schemas import GenerateRequest, model_limit_errors, to_generation_request
     from t2m.cli.main import CliError
-    from t2m.service.schemas import GenerateRequest, model_limit_errors, to_generation_request
 
     fmt = FORMATS.get(args.output.suffix.lower())
     if fmt is None:
@@ -106,12 +106,12 @@ def _generate(args: argparse.Namespace) -> int:
     if not args.output.parent.exists():
         raise CliError(f"{args.output.parent}: output directory does not exist")
 
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.formats import render
-    from t2m.service.handles import make_handle
-    from t2m.service.settings import Settings
+    from t2m.bundles import configured_default_bundle
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.formats import render
+    from t2m.runtime.handles import make_handle
 
-    bundle = args.model if args.model is not None else Settings().bundle_path
+    bundle = args.model if args.model is not None else configured_default_bundle()
     engine = OnnxEngine.load(bundle)
     errors = model_limit_errors(request, engine.limits)
     if errors:

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from t2m.export.bench.machine import describe_machine
-from t2m.service.engine.engine import OnnxEngine
-from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
+from t2m.runtime.engine import OnnxEngine
+from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
 
 ONE_SENTENCE = (("a person walks forward", 10.0),)
 STREAM = (("a person walks forward", 3.0), ("a person waves with the right hand", 3.0), ("a person bows", 4.0))

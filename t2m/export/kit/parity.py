@@ -81,7 +81,7 @@ def greedy_rollout(step: Any, cond: np.ndarray, length: np.ndarray, steps: int, 
 def ort_greedy_rollout(session: Any, cond: np.ndarray, length: np.ndarray, kv_shape: Sequence[int], steps: int,
                        end_id: int, guidance: float = 1.0) -> Rollout:
     """greedy_rollout through a gpt_step onnxruntime session; kv_shape = (n_layer, n_head, head_dim)."""
-    from t2m.service.engine.onnx_step import OnnxGptStep
+    from t2m.runtime.onnx_step import OnnxGptStep
 
     has_length = "length" in {tensor.name for tensor in session.get_inputs()}
     n_layer, n_head, head_dim = kv_shape

@@ -134,10 +134,10 @@ def compare_bundles(fp32_dir: str | Path, quantised_dir: str | Path, graphs: Seq
     """Serve the same `runs` seeded one-sentence requests on both bundles; compare their tokens and, for each file
     in `graphs`, the quantised graph's logits with the float32 one's on the float32 trajectory. `captured`: `graphs`
     is the GPT step the service replays as CUDA graphs (gpt_step_fixed.onnx), served here on the CPU provider."""
-    from t2m.service.engine.bundle import load_bundle
-    from t2m.service.engine.engine import OnnxEngine
-    from t2m.service.engine.execution import Execution
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.bundle_loader import load_bundle
+    from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.execution import Execution
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     execution = Execution(cuda_graphs=True) if captured else None
     fp32 = load_bundle(Path(fp32_dir), intra_op_threads=threads, execution=execution)

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from t2m.bundle import CAPTION_INDEX_FILE, CaptionIndex, read_manifest
 from t2m.export.writing.bundle import write_bundle
-from t2m.service.engine.text import TextEncoder, load_tokenizer
+from t2m.runtime.text import TextEncoder, load_tokenizer
 
 __all__ = [
     "DEFAULT_PHRASINGS",

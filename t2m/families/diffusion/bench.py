@@ -21,7 +21,7 @@ import numpy as np
 
 from t2m.export.bench.bundles import bench_engine
 from t2m.export.bench.machine import describe_machine
-from t2m.service.engine.engine import OnnxEngine
+from t2m.runtime.engine import OnnxEngine
 
 __all__ = ["ANCHORS", "codes_of", "denoiser_feed", "run_diffusion_speed"]
 
@@ -80,7 +80,7 @@ def call_ms(session: Any, feed: Mapping[str, np.ndarray], repeats: int) -> tuple
 def seeded_run(engine: OnnxEngine, segments: Sequence[tuple[str, float]], seed: int = 7) -> np.ndarray:
     """One request's normalised frames with injected noise (the same draws for every denoiser)."""
     from t2m.families.diffusion.loop import noise_from
-    from t2m.service.engine.types import GenerationRequest, SegmentRequest
+    from t2m.runtime.types import GenerationRequest, SegmentRequest
 
     request = GenerationRequest(segments=[SegmentRequest(text, duration) for text, duration in segments], seed=seed,
                                 guidance=engine.limits.guidance())
@@ -104,7 +104,7 @@ def _requests(name: str, engine: OnnxEngine, call: float, repeats: int) -> list[
 
 def _int8_session(bundle: Path, folder: Path, threads: int) -> Any:
     from t2m.export.writing.quantize import quantize_graph
-    from t2m.service.engine.bundle import open_session, session_options
+    from t2m.runtime.bundle_loader import open_session, session_options
 
     path = folder / "denoiser.onnx"
     if not path.is_file():

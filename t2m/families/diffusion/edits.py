@@ -37,12 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from t2m.service.edit_context import context_sides
-from t2m.service.editing import AnyEdit, EditError, EditResult, _check_kind
-from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, SegmentRequest
-from t2m.service.handles import HandleError, segment_seed
-from t2m.service.recipes import MAX_EDIT_STEPS, Recipe, make_recipe, read_recipe
-from t2m.service.schemas import MAX_SEGMENTS, MAX_TOTAL_S, BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
+from t2m.api.schemas import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
+from t2m.runtime.edit_context import context_sides
+from t2m.runtime.editing import AnyEdit, EditError, EditResult, _check_kind
+from t2m.runtime.handles import HandleError, segment_seed
+from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S
+from t2m.runtime.recipes import MAX_EDIT_STEPS, Recipe, make_recipe, read_recipe
+from t2m.runtime.types import GenerationRequest, ModelLimits, RequestLimitError, SegmentRequest
 
 __all__ = ["CONTEXT_FRAMES", "FrameSegment", "edit_recipe", "replay"]
 

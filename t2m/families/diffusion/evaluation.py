@@ -23,7 +23,7 @@ class TokenStateFeatures:
     ([N, L, D + 1]): the evaluation keeps one array per caption, and the family splits it again."""
 
     def __init__(self, text: Any, max_length: int) -> None:
-        self.text = text              # t2m.service.engine.text.TextEncoder (the bundle's tokenizer and text graph)
+        self.text = text              # t2m.runtime.text.TextEncoder (the bundle's tokenizer and text graph)
         self.max_length = max_length
 
     def encode(self, texts: Sequence[str]) -> np.ndarray:
@@ -113,7 +113,7 @@ class FrameDecoder:
 def diffusion_bundle_models(evaluator: Any, evaluator_run: str, bundle: Any, served: Any) -> Models:
     """The evaluator and a served diffusion bundle (text graph, denoiser and decoder in onnxruntime)."""
     from t2m.bundle import get_family
-    from t2m.service.engine.text import TextEncoder, load_tokenizer
+    from t2m.runtime.text import TextEncoder, load_tokenizer
 
     manifest = bundle.manifest
     describe = get_family(manifest.family).describe(manifest, manifest.settings.default_guidance)

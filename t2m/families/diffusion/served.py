@@ -41,12 +41,12 @@ from t2m.families.diffusion.loop import (
     sample_segment_chains,
 )
 from t2m.motion.skeleton import get_skeleton
-from t2m.service.engine.body_parts import part_channels
-from t2m.service.engine.bundle import Bundle
-from t2m.service.engine.reach import DecoderReach
-from t2m.service.engine.requests import segment_steps
-from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError
+from t2m.runtime.body_parts import part_channels
+from t2m.runtime.bundle_loader import Bundle
+from t2m.runtime.reach import DecoderReach
+from t2m.runtime.requests import segment_steps
+from t2m.runtime.text import TextEncoder
+from t2m.runtime.types import GenerationRequest, ModelLimits, RequestLimitError
 
 __all__ = ["DiffusionCodes", "DiffusionRequest", "OnnxDenoiser", "encode_token_states", "frame_reach"]
 

@@ -5,7 +5,7 @@ and new buffers, and a GPU replays nothing: each of a step's ~500 kernels is lau
 bounds the release-size step at 3.1-3.6 ms on an H100 (docs/gpu.md). Here the cache always holds `capacity`
 positions; a step writes its new key/value at each row's `position` (an elementwise select, no shape change) and
 attends to the positions up to it (a key mask), so consecutive steps have the same shapes, and onnxruntime can
-capture a step once and replay it (`enable_cuda_graph`, t2m/service/engine/graphed_step.py).
+capture a step once and replay it (`enable_cuda_graph`, t2m/runtime/graphed_step.py).
 
 Every reshape uses constants (-1 for the batch), so the exported graph has no shape arithmetic on the batch; each
 row has its own position, so rows need not be in lockstep. The masked positions add exact zeros to the softmax and

@@ -8,13 +8,13 @@ import numpy as np
 
 from t2m.bundle.graphs import FIXED_STEP_GRAPH
 from t2m.families.gpt.loop import GptCohort, GptStep, SamplingJob, sample_codes
-from t2m.service.engine.bound_step import BoundGptStep
-from t2m.service.engine.bundle import Bundle
-from t2m.service.engine.graphed_step import FixedCacheGptStep
-from t2m.service.engine.onnx_step import OnnxGptStep
-from t2m.service.engine.requests import check_top_k, segment_steps
-from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
+from t2m.runtime.bound_step import BoundGptStep
+from t2m.runtime.bundle_loader import Bundle
+from t2m.runtime.graphed_step import FixedCacheGptStep
+from t2m.runtime.onnx_step import OnnxGptStep
+from t2m.runtime.requests import check_top_k, segment_steps
+from t2m.runtime.text import TextEncoder
+from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 
 __all__ = ["GptCodes", "lockstep_job"]
 
@@ -59,5 +59,5 @@ class GptCodes:
         return sample_codes(self.step, jobs, max_tokens, self.end_id, on_step)
 
     def cohort(self, jobs: Sequence[SamplingJob], max_tokens: int) -> GptCohort:
-        """Jobs that start stepping together now (continuous batching: t2m.service.engine.continuous)."""
+        """Jobs that start stepping together now (continuous batching: t2m.runtime.continuous)."""
         return GptCohort(self.step, jobs, max_tokens, self.end_id)

@@ -35,7 +35,7 @@ from t2m.export.graphs.export import export_graph, ort_session
 from t2m.families.hifigpt.loop import ResidualGptStep, TemporalStep, sample_code_rows
 from t2m.families.hifigpt.network import HiFiGPT
 from t2m.families.hifigpt.sampling import TorchResidualGptStep, TorchTemporalStep
-from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
+from t2m.runtime.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
 
 KV_DYNAMIC = {2: "batch", 4: "past"}
 PRESENT_DYNAMIC = {2: "batch", 4: "past_plus_1"}

@@ -16,11 +16,11 @@ import numpy as np
 from t2m.decoding.lockstep import SamplingJob
 from t2m.families.gpt.served import lockstep_job
 from t2m.families.hifigpt.loop import HiFiGPTCohort, sample_code_rows
-from t2m.service.engine.bound_step import BoundResidualGptStep, BoundTemporalStep
-from t2m.service.engine.bundle import Bundle
-from t2m.service.engine.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
-from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
+from t2m.runtime.bound_step import BoundResidualGptStep, BoundTemporalStep
+from t2m.runtime.bundle_loader import Bundle
+from t2m.runtime.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
+from t2m.runtime.text import TextEncoder
+from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 
 __all__ = ["HiFiGPTCodes"]
 
@@ -52,5 +52,5 @@ class HiFiGPTCodes:
         return sample_code_rows(self.temporal, self.residual, jobs, max_tokens, on_step)
 
     def cohort(self, jobs: Sequence[SamplingJob], max_tokens: int) -> HiFiGPTCohort:
-        """Jobs that start stepping together now (continuous batching: t2m.service.engine.continuous)."""
+        """Jobs that start stepping together now (continuous batching: t2m.runtime.continuous)."""
         return HiFiGPTCohort(self.temporal, self.residual, jobs, max_tokens)

@@ -34,7 +34,7 @@ from t2m.families.masked.sampling import generate_token_maps
 from t2m.model.networks.fused_vqvae import FusedVQVAE
 from t2m.model.networks.joint_vqvae import JointVQVAE
 from t2m.model.networks.vqvae import MotionVQVAE
-from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
+from t2m.runtime.onnx_step import OnnxMaskedStep, OnnxResidualStep
 
 DYNAMIC = {0: "batch", 1: "tokens"}
 MapVQ = JointVQVAE | MotionVQVAE | FusedVQVAE

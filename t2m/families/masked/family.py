@@ -266,11 +266,11 @@ class MaskedFamily(ModelFamily):
 
     def capabilities_of(self, manifest: Any) -> Capabilities:
         """Edits fill the edited tokens by inpainting; `body_part` too where the map's columns are joint groups (a
-        joint-token map: t2m.service.engine.body_parts), not for MoMask's one column."""
+        joint-token map: t2m.runtime.body_parts), not for MoMask's one column."""
         from dataclasses import replace
 
         from t2m.motion.skeleton import get_skeleton
-        from t2m.service.engine.body_parts import part_columns
+        from t2m.runtime.body_parts import part_columns
 
         if not part_columns(get_skeleton(manifest.skeleton).joint_names, manifest.settings.columns):
             return self.capabilities

@@ -24,12 +24,12 @@ import onnxruntime as ort
 from t2m.decoding.inpaint import Inpaint
 from t2m.families.masked.loop import MaskedJob, sample_branch_maps, sample_token_maps
 from t2m.motion.skeleton import get_skeleton
-from t2m.service.engine.body_parts import part_columns
-from t2m.service.engine.bundle import Bundle
-from t2m.service.engine.onnx_step import OnnxMaskedStep, OnnxResidualStep
-from t2m.service.engine.requests import check_top_k, segment_steps
-from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits, RequestLimitError
+from t2m.runtime.body_parts import part_columns
+from t2m.runtime.bundle_loader import Bundle
+from t2m.runtime.onnx_step import OnnxMaskedStep, OnnxResidualStep
+from t2m.runtime.requests import check_top_k, segment_steps
+from t2m.runtime.text import TextEncoder
+from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits, RequestLimitError
 
 __all__ = ["MaskedCodes", "draw_rows"]
 

@@ -14,17 +14,17 @@ from fastapi import APIRouter, Depends, Response
 from fastapi.exceptions import RequestValidationError
 from starlette.concurrency import run_in_threadpool
 
+from t2m.api.schemas import EditRequest, EditResponse, unknown_model_error
 from t2m.families.diffusion.edits import edit_recipe
+from t2m.runtime.editing import EditError, EditPlan, plan_edit
+from t2m.runtime.formats import STREAM_MEDIA_TYPE
+from t2m.runtime.handles import HandleError, handle_model, read_handle
+from t2m.runtime.scheduling import GenerationTimeout
+from t2m.runtime.served_models import ServedModel
+from t2m.runtime.types import GenerationRequest, Motion, RequestLimitError, SegmentRequest
+from t2m.runtime.uploads import uploaded_handle
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
-from t2m.service.editing import EditError, EditPlan, plan_edit
-from t2m.service.engine.types import GenerationRequest, Motion, RequestLimitError, SegmentRequest
-from t2m.service.formats import STREAM_MEDIA_TYPE
-from t2m.service.handles import HandleError, handle_model, read_handle
-from t2m.service.registry import ServedModel
 from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
-from t2m.service.scheduling import GenerationTimeout
-from t2m.service.schemas import EditRequest, EditResponse, unknown_model_error
-from t2m.service.uploads import uploaded_handle
 
 __all__ = ["router"]
 

@@ -13,9 +13,15 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from t2m.service.dependencies import ServiceState, ready_state, require_api_key
-from t2m.service.engine.types import GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError
-from t2m.service.formats import (
+from t2m.api.schemas import (
+    ErrorResponse,
+    GenerateRequest,
+    MotionResponse,
+    model_limit_errors,
+    to_generation_request,
+    unknown_model_error,
+)
+from t2m.runtime.formats import (
     STREAM_MEDIA_TYPE,
     ndjson,
     render,
@@ -24,19 +30,13 @@ from t2m.service.formats import (
     stream_frames,
     stream_start,
 )
-from t2m.service.handles import make_handle
-from t2m.service.registry import ServedModel
-from t2m.service.scheduling import GenerationTimeout, QueueFullError
-from t2m.service.schemas import (
-    ErrorResponse,
-    GenerateRequest,
-    MotionResponse,
-    model_limit_errors,
-    to_generation_request,
-    unknown_model_error,
-)
+from t2m.runtime.frame_stream import MotionStream
+from t2m.runtime.handles import make_handle
+from t2m.runtime.scheduling import GenerationTimeout, QueueFullError
+from t2m.runtime.served_models import ServedModel
+from t2m.runtime.types import GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError
+from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.settings import Settings
-from t2m.service.streaming import MotionStream
 
 __all__ = ["RANDOM_SEED_BITS", "STREAM_CHUNK_FRAMES", "http_error", "motion_answer", "router"]
 

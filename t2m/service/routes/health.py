@@ -4,9 +4,9 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
 
+from t2m.api.schemas import HealthResponse, ModelDetails, request_limits
+from t2m.runtime.served_models import ServedModel
 from t2m.service.dependencies import ServiceState, get_state
-from t2m.service.registry import ServedModel
-from t2m.service.schemas import HealthResponse, ModelDetails, request_limits
 from t2m.service.settings import Settings
 
 __all__ = ["router"]

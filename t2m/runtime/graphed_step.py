@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from t2m.service.engine.bound_step import session_device
+from t2m.runtime.bound_step import session_device
 
 __all__ = ["FixedCache", "FixedCacheGptStep", "GraphedSession", "graph_session", "run_options"]
 

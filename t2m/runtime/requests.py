@@ -1,12 +1,12 @@
 """A request checked against the model it asks, once for every family: its segments' code steps and its top-k.
 
-Each family's served object turns a request into its own job (t2m.service.engine.family_codes), but what a request
+Each family's served object turns a request into its own job (t2m.runtime.family_codes), but what a request
 may ask of a model is the same for all: a duration becomes round(duration * fps / frames_per_token) steps (at least
 1) and must fit the model's longest segment, a null duration lets the model end the segment (when it can), and top-k
 must lie within the codebook. Errors are RequestLimitErrors naming the field (a 422 over HTTP)."""
 from __future__ import annotations
 
-from t2m.service.engine.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
+from t2m.runtime.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
 
 __all__ = ["check_top_k", "segment_steps"]
 

@@ -8,14 +8,13 @@ import binascii
 import math
 from typing import Any
 
-from t2m.service.engine.types import ModelLimits
-from t2m.service.schemas import MAX_GUIDANCE, MAX_SEED
+from t2m.runtime.limits import MAX_GUIDANCE, MAX_HANDLE_CHARS, MAX_SEED
+from t2m.runtime.types import ModelLimits
 
 __all__ = ["CHECKSUM_BYTES", "HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "_no_constant", "_number", "_packed",
            "model_seed_guidance"]
 
 HANDLE_PREFIX = "t2m1."
-MAX_HANDLE_CHARS = 2_000_000      # the string; the decompressed body is bounded per model (handles._max_body)
 CHECKSUM_BYTES = 16
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import orjson
 
 from t2m.motion.skeleton import get_skeleton
-from t2m.service.engine.types import ModelLimits, Motion
+from t2m.runtime.types import ModelLimits, Motion
 
 __all__ = ["FILENAMES", "MEDIA_TYPES", "STREAM_MEDIA_TYPE", "Rendered", "frames_json", "motion_bvh", "motion_glb",
            "motion_json", "ndjson", "preload", "render", "stream_end", "stream_error", "stream_frames",

@@ -21,18 +21,18 @@ import numpy as np
 from t2m.bundle import CaptionIndex, get_family
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
-from t2m.service.engine.bundle import Bundle, load_bundle
-from t2m.service.engine.continuous import PreparedJobs, RunningCohorts
-from t2m.service.engine.decoder import Decoder
-from t2m.service.engine.execution import Execution
-from t2m.service.engine.family_codes import FamilyCodes, code_layout, decoder_reach, ends_segments
-from t2m.service.engine.reach import DecoderReach, probe_reach
-from t2m.service.engine.requests import segment_steps
-from t2m.service.engine.step_order import StepOrder
-from t2m.service.engine.streaming import FrameStreamer
-from t2m.service.engine.text import TextEncoder, load_tokenizer
-from t2m.service.engine.timeline import FittedSink, Timeline, fit_frames
-from t2m.service.engine.types import (
+from t2m.runtime.bundle_loader import Bundle, load_bundle
+from t2m.runtime.continuous import PreparedJobs, RunningCohorts
+from t2m.runtime.decoder import Decoder
+from t2m.runtime.early_frames import FrameStreamer
+from t2m.runtime.execution import Execution
+from t2m.runtime.family_codes import FamilyCodes, code_layout, decoder_reach, ends_segments
+from t2m.runtime.reach import DecoderReach, probe_reach
+from t2m.runtime.requests import segment_steps
+from t2m.runtime.step_order import StepOrder
+from t2m.runtime.text import TextEncoder, load_tokenizer
+from t2m.runtime.timeline import FittedSink, Timeline, fit_frames
+from t2m.runtime.types import (
     GenerationCancelled,
     GenerationRequest,
     ModelLimits,

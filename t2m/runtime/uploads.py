@@ -19,16 +19,17 @@ from collections.abc import Callable
 
 import numpy as np
 
+from t2m.api.schemas import UploadedMotion
 from t2m.motion.bvh import BvhError, read_bvh
 from t2m.motion.bvh_export import CM_PER_METRE, bvh_joint_names
 from t2m.motion.features import joints_to_features, normalize_joints
 from t2m.motion.retarget import clean_fps
 from t2m.motion.skeleton import get_skeleton
 from t2m.motion.transforms import resample
-from t2m.service.editing import EditError
-from t2m.service.engine.types import ModelLimits
-from t2m.service.handles import HandleSegment, MotionHandle
-from t2m.service.schemas import MAX_SEGMENTS, MAX_TOTAL_S, MIN_DURATION_S, UploadedMotion
+from t2m.runtime.editing import EditError
+from t2m.runtime.handles import HandleSegment, MotionHandle
+from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S, MIN_DURATION_S
+from t2m.runtime.types import ModelLimits
 
 __all__ = ["DEFAULT_TEXT", "uploaded_handle"]
 

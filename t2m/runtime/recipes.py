@@ -31,16 +31,10 @@ from typing import Any
 
 from pydantic import TypeAdapter, ValidationError
 
-from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, frames_for_duration
-from t2m.service.handle_format import CHECKSUM_BYTES, HandleError, _no_constant, _packed, model_seed_guidance
-from t2m.service.schemas import (
-    MAX_DURATION_S,
-    MAX_SEGMENTS,
-    MAX_TEXT_CHARS,
-    MAX_TOTAL_S,
-    MIN_DURATION_S,
-    Edit,
-)
+from t2m.api.schemas import Edit
+from t2m.runtime.handle_format import CHECKSUM_BYTES, HandleError, _no_constant, _packed, model_seed_guidance
+from t2m.runtime.limits import MAX_DURATION_S, MAX_SEGMENTS, MAX_TEXT_CHARS, MAX_TOTAL_S, MIN_DURATION_S
+from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, frames_for_duration
 
 __all__ = ["MAX_EDIT_STEPS", "RECIPE_PREFIX", "Recipe", "make_recipe", "read_recipe", "recipe_model"]
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from t2m.service.engine.types import FrameSink
+from t2m.runtime.types import FrameSink
 
 __all__ = ["FittedSink", "SegmentMap", "Timeline", "fit_frames", "segment_maps"]
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from t2m.service.engine.onnx_step import OnnxGptStep, OnnxResidualGptStep, OnnxTemporalStep
+from t2m.runtime.onnx_step import OnnxGptStep, OnnxResidualGptStep, OnnxTemporalStep
 
 __all__ = ["KEEP_ROWS_GRAPH", "BoundGptStep", "BoundResidualGptStep", "BoundTemporalStep", "CacheBinding",
            "host_cache", "session_device"]

@@ -10,7 +10,7 @@ together as before (16 clients asking for 10 s each: every cohort steps every ti
 more than `max_skips` boundaries out of `max_skips + 1` (and only while something much shorter runs): what it loses
 is bounded by the short work's share of the machine. Sizes, not steps left: a long request near its end is not
 preferred to one that just arrived with the same size, so the oldest do not starve the youngest. No order changes a
-motion: each request's codes come from its own generator and its own rows (t2m.service.engine.continuous).
+motion: each request's codes come from its own generator and its own rows (t2m.runtime.continuous).
 """
 from __future__ import annotations
 

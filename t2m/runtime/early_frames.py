@@ -27,7 +27,7 @@ import numpy as np
 
 from t2m.motion.features import JointRecovery
 from t2m.motion.skeleton import Skeleton
-from t2m.service.engine.reach import DecoderReach
+from t2m.runtime.reach import DecoderReach
 
 __all__ = ["DecodedSink", "FrameStreamer"]
 

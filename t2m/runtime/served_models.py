@@ -10,8 +10,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from t2m.service.engine.types import Engine, ModelLimits
-from t2m.service.scheduling import QueuedWorkers, SerialWork
+from t2m.runtime.scheduling import QueuedWorkers, SerialWork
+from t2m.runtime.types import Engine, ModelLimits
 
 __all__ = ["DuplicateModelError", "LoadedEngine", "ModelLoadError", "ModelRegistry", "ServedModel", "load_engines"]
 

@@ -32,8 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
-from t2m.service.handle_format import (
+from t2m.runtime.handle_format import (
     CHECKSUM_BYTES,
     HANDLE_PREFIX,
     MAX_HANDLE_CHARS,
@@ -43,8 +42,7 @@ from t2m.service.handle_format import (
     _packed,
     model_seed_guidance,
 )
-from t2m.service.recipes import RECIPE_PREFIX, make_recipe, recipe_model
-from t2m.service.schemas import (
+from t2m.runtime.limits import (
     MAX_DURATION_S,
     MAX_SEGMENTS,
     MAX_TEMPERATURE,
@@ -52,6 +50,8 @@ from t2m.service.schemas import (
     MAX_TOTAL_S,
     MIN_DURATION_S,
 )
+from t2m.runtime.recipes import RECIPE_PREFIX, make_recipe, recipe_model
+from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
 
 __all__ = ["HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "HandleSegment", "MotionHandle", "handle_model",
            "make_handle", "read_handle", "segment_seed"]

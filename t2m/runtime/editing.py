@@ -22,10 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from t2m.service.edit_context import inpaint_map
-from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion, SegmentRequest, tokens_for_duration
-from t2m.service.handles import MotionHandle, make_handle, read_handle, segment_seed
-from t2m.service.schemas import MAX_SEGMENTS, MAX_TOTAL_S, BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
+from t2m.api.schemas import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
+from t2m.runtime.edit_context import inpaint_map
+from t2m.runtime.handles import MotionHandle, make_handle, read_handle, segment_seed
+from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S
+from t2m.runtime.types import GenerationRequest, ModelLimits, Motion, SegmentRequest, tokens_for_duration
 
 __all__ = ["AnyEdit", "EditError", "EditPlan", "EditResult", "PlannedSegment", "SampledPart", "edit_in_process",
            "plan_edit"]

@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from t2m.service.engine.text import TextEncoder
-from t2m.service.engine.types import CodeLayout, GenerationRequest, ModelLimits
+from t2m.runtime.text import TextEncoder
+from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 
 __all__ = ["FamilyCodes", "FamilyJob", "code_layout", "decoder_reach", "ends_segments"]
 

@@ -1,5 +1,5 @@
 """One entry for an edit made on an engine directly, no server (`t2m edit`, the benchmarks): a token model's handle
-through t2m.service.editing (its parts sampled, the codes decoded once), a diffusion model's recipe through
+through t2m.runtime.editing (its parts sampled, the codes decoded once), a diffusion model's recipe through
 t2m.families.diffusion.edits (replayed and inpainted on its frames), as POST /edit chooses between them."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from t2m.families.diffusion.edits import edit_recipe
-from t2m.service.editing import AnyEdit, EditResult, edit_in_process
-from t2m.service.handles import MotionHandle
+from t2m.runtime.editing import AnyEdit, EditResult, edit_in_process
+from t2m.runtime.handles import MotionHandle
 
 __all__ = ["edit_with_engine"]
 

@@ -24,7 +24,22 @@ from pydantic import (
 )
 
 from t2m import __version__
-from t2m.service.engine.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
+from t2m.runtime.limits import (
+    MAX_BVH_CHARS,
+    MAX_DURATION_S,
+    MAX_GUIDANCE,
+    MAX_HANDLE_CHARS,
+    MAX_MODEL_NAME_CHARS,
+    MAX_SEED,
+    MAX_SEGMENTS,
+    MAX_TEMPERATURE,
+    MAX_TEXT_CHARS,
+    MAX_TOTAL_S,
+    MAX_UPLOAD_FPS,
+    MAX_UPLOAD_FRAMES,
+    MIN_DURATION_S,
+)
+from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
 
 __all__ = [
     "MAX_DURATION_S",
@@ -63,18 +78,6 @@ __all__ = [
     "unknown_model_error",
 ]
 
-MAX_SEGMENTS = 32
-MAX_TEXT_CHARS = 300
-MIN_DURATION_S = 0.5
-MAX_DURATION_S = 10.0
-MAX_TOTAL_S = 120.0
-MAX_GUIDANCE = 10.0
-MAX_TEMPERATURE = 5.0
-MAX_MODEL_NAME_CHARS = 200
-MAX_SEED = 2**53 - 1   # the largest integer every JSON reader (JavaScript included) holds exactly
-MAX_UPLOAD_FPS = 120.0
-MAX_UPLOAD_FRAMES = int(MAX_TOTAL_S * MAX_UPLOAD_FPS) + 1   # a schema bound; the service checks frames / fps too
-MAX_BVH_CHARS = 16_000_000
 
 OutputFormat = Literal["json", "bvh", "glb"]
 
@@ -158,7 +161,6 @@ class GenerateRequest(_Strict):
         return segments
 
 
-MAX_HANDLE_FIELD_CHARS = 2_000_000   # = handles.MAX_HANDLE_CHARS (handles imports this module)
 ModelName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_MODEL_NAME_CHARS)]
 Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=MAX_TEXT_CHARS, pattern=r"\S")]
 
@@ -276,7 +278,7 @@ class EditRequest(_Strict):
     """POST /edit: change some segments of a motion (one the service made: `handle`; or one the user brings:
     `motion`) and keep the others' codes."""
 
-    handle: Annotated[str, StringConstraints(min_length=1, max_length=MAX_HANDLE_FIELD_CHARS)] | None = Field(
+    handle: Annotated[str, StringConstraints(min_length=1, max_length=MAX_HANDLE_CHARS)] | None = Field(
         None, description="The `handle` of a json answer of /generate or /edit (or give `motion`).")
     motion: UploadedMotion | None = Field(
         None, description="Instead of a handle: a motion to encode with the model's encoder graph (encoder.onnx; a "

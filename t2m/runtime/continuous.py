@@ -11,7 +11,7 @@ boundary is the session's StepOrder's choice (engine/step_order.py: the shortest
 admitted while the newest cohort has not stepped yet join it (nothing was computed for it, so it is the same as
 starting together). A request leaves the step its last segment finishes, whatever is still running beside it, and is
 decoded then (the service's batcher decodes it, and prepares requests that join mid-run, on a helper thread beside
-the steps: t2m.service.scheduling.ContinuousBatcher). Its codes come from its own seeded generator and its own rows'
+the steps: t2m.runtime.scheduling.ContinuousBatcher). Its codes come from its own seeded generator and its own rows'
 logits (int8 graphs quantise activations per row: t2m/export/writing/row_quantize.py), so they are the same alone,
 in a run-to-completion batch, joined mid-run, in any step order, or sharing residual calls with other cohorts.
 """
@@ -24,8 +24,8 @@ from typing import Protocol
 import numpy as np
 
 from t2m.decoding.lockstep import Cohort, SamplingJob
-from t2m.service.engine.step_order import ShortestFirst, StepOrder
-from t2m.service.engine.types import GenerationRequest, ModelLimits, Motion
+from t2m.runtime.step_order import ShortestFirst, StepOrder
+from t2m.runtime.types import GenerationRequest, ModelLimits, Motion
 
 __all__ = ["CohortSource", "Finished", "PreparedJobs", "RunningCohorts", "Sampled"]
 

@@ -30,8 +30,8 @@ from t2m.bundle import (
     required_files,
 )
 from t2m.bundle.manifest import INT8_LABELS
-from t2m.service.engine.execution import Execution, ProviderError, check_available
-from t2m.service.engine.graphed_step import GraphedSession, graph_session
+from t2m.runtime.execution import Execution, ProviderError, check_available
+from t2m.runtime.graphed_step import GraphedSession, graph_session
 
 __all__ = ["Bundle", "BundleError", "Execution", "Manifest", "load_bundle", "open_session", "session_options"]
 

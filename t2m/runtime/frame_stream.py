@@ -14,8 +14,8 @@ from concurrent.futures import Future
 
 import numpy as np
 
-from t2m.service.engine.types import GenerationRequest, Motion
-from t2m.service.scheduling import GenerationTimeout, QueuedWorkers
+from t2m.runtime.scheduling import GenerationTimeout, QueuedWorkers
+from t2m.runtime.types import GenerationRequest, Motion
 
 __all__ = ["MotionStream"]
 

@@ -10,9 +10,9 @@ Two ways to run what was admitted, side by side here:
 - `MicroBatcher` (run to the end): the admitted requests are one batch, generated together by
   `engine.generate_batch`; the worker takes the next batch when it is done (families without cohorts, e.g. masked).
 - `ContinuousBatcher` (continuous stepping): the worker keeps its engine's continuous session
-  (t2m.service.engine.continuous) open; the requests admitted at a step boundary start as a new cohort beside the
+  (t2m.runtime.continuous) open; the requests admitted at a step boundary start as a new cohort beside the
   running ones (or join the newest if it has not stepped yet), the cohorts its StepOrder chooses step once (the
-  shortest work first: t2m.service.engine.step_order), and a request is answered the step its codes are done,
+  shortest work first: t2m.runtime.step_order), and a request is answered the step its codes are done,
   decoded on the worker's helper thread (which also prepares the requests that join while cohorts step).
 Words: a *queued request* waits here; a *batch* is the requests run together to their end; a *cohort* the requests
 that started stepping at one boundary; *rows* what a step's graph call computes (a segment each, two with guidance).
@@ -31,10 +31,10 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar
 
-from t2m.service.engine.continuous import PreparedJobs, Sampled
-from t2m.service.engine.requests import segment_steps
-from t2m.service.engine.step_order import ShortestFirst, StepOrder
-from t2m.service.engine.types import Engine, GenerationCancelled, GenerationRequest, Motion
+from t2m.runtime.continuous import PreparedJobs, Sampled
+from t2m.runtime.requests import segment_steps
+from t2m.runtime.step_order import ShortestFirst, StepOrder
+from t2m.runtime.types import Engine, GenerationCancelled, GenerationRequest, Motion
 
 T = TypeVar("T")
 
@@ -246,7 +246,7 @@ class MicroBatcher(QueuedWorkers):
 
 
 class CohortRunner(Protocol):
-    """An engine's running work (t2m.service.engine.continuous.RunningCohorts)."""
+    """An engine's running work (t2m.runtime.continuous.RunningCohorts)."""
 
     steps: int
     joins_mid_run: int

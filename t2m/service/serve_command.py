@@ -1,4 +1,7 @@
-"""`t2m serve`: run the HTTP service (uvicorn on service.app) - the same command the container runs."""
+"""`t2m serve`: run the HTTP service (uvicorn on service.app) - the same command the container runs.
+
+The HTTP service adds this command to the CLI (pyproject's entry point group t2m.commands), so the CLI itself
+never imports the service."""
 from __future__ import annotations
 
 import argparse
@@ -10,6 +13,8 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from t2m.service.settings import Settings
+
+HELP = "run the HTTP service"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -77,7 +82,7 @@ def check_bundles(directories: Sequence[Path]) -> None:
 
 def provider_list(text: str) -> str:
     """`--providers` checked (an unknown name: a one-line ProviderError naming the setting), as the env holds it."""
-    from t2m.service.engine.execution import ort_providers
+    from t2m.runtime.execution import ort_providers
 
     names = [item.strip().lower() for item in text.split(",") if item.strip()]
     ort_providers(names)
@@ -89,7 +94,7 @@ def provider_list(text: str) -> str:
 def check_providers(settings: Settings) -> None:
     """Fail now, in one line naming T2M_EXECUTION_PROVIDERS, if the installed onnxruntime lacks a provider (rather
     than a /health 503 after the server started)."""
-    from t2m.service.engine.execution import check_available
+    from t2m.runtime.execution import check_available
 
     check_available(settings.execution_providers)
 
