@@ -142,7 +142,7 @@ def violations(package: str) -> list[str]:
                 found.append(f"{where}:{line} imports {module} (only the registry finds a family, by module name)")
             if package != "service" and name in HTTP_FRAMEWORKS:
                 found.append(f"{where}:{line} imports {name} (HTTP lives in t2m/service/ alone)")
-            if role == "served" and (name not in SERVED_OURS and name in OURS or family_role(module) == "offline"):
+            if role == "served" and ((name not in SERVED_OURS and name in OURS) or family_role(module) == "offline"):
                 found.append(f"{where}:{line} imports {module} (a served module imports no offline code)")
             if package == "motion" and name not in STDLIB and name not in OURS:
                 allowed = GLTF_THIRD_PARTY if path.name == "gltf.py" else MOTION_THIRD_PARTY
