@@ -16,7 +16,7 @@ from t2m.export.graphs.export import ort_session
 from t2m.export.graphs.text import tokenize
 from t2m.export.kit.text_sources import encoder_text_source
 from t2m.model.networks.text_encoders import ClipEncoder
-from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
 
 TEXTS = ["a person walks forward", "someone waves with the left hand while jumping", "a man runs " * 30,
          "the person\u2019s arms swing", "ΟΔΥΣΣΕΥΣ bows", "rock &amp; roll", "a", "walk backwards then turn left"]

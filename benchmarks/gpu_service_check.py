@@ -26,7 +26,7 @@ sys.path[:0] = [str(REPO), str(REPO / "tests" / "export")]   # the tests' releas
 
 
 def _small_clip(workdir: Path) -> Path:
-    from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+    from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
 
     return save_torchscript_archive(openai_clip_state(width=64, layers=2, embed_dim=512, seed=5),
                                     workdir / "ViT-B-32.pt")
@@ -34,14 +34,13 @@ def _small_clip(workdir: Path) -> Path:
 
 def import_momask_release(workdir: Path, release_sizes: bool) -> Path:
     """`t2m import momask` of random release-layout checkpoints: the bundle folder."""
-    from momask_release_files import (  # type: ignore[import-not-found]
+    from t2m.families.masked.import_momask import import_momask
+    from t2m.families.masked.momask_release import (  # type: ignore[import-not-found]
         RELEASE,
         SMALL,
         release_states,
         write_release,
     )
-
-    from t2m.families.masked.import_momask import import_momask
 
     sizes = RELEASE if release_sizes else SMALL
     root = workdir / "checkpoints" / "t2m"
@@ -54,13 +53,12 @@ def import_momask_release(workdir: Path, release_sizes: bool) -> Path:
 def import_t2m_gpt_release(workdir: Path, release_sizes: bool) -> Path:
     """`t2m import t2m-gpt --cuda-graph-step` of random release-layout checkpoints (the release's 18 layers of 1024,
     or a small stand-in): the bundle folder."""
-    from t2m_gpt_release_keys import (  # type: ignore[import-not-found]
+    from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt
+    from t2m.families.gpt.t2m_gpt_release import (  # type: ignore[import-not-found]
         release_gpt_state,
         release_vq_state,
         write_release_files,
     )
-
-    from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt
 
     vq = release_vq_state(seed=1) if release_sizes else release_vq_state(width=64, code_dim=32, nb_code=64, seed=1)
     gpt = (release_gpt_state(seed=2) if release_sizes else

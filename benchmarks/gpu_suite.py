@@ -8,7 +8,7 @@ the 4-frame GPT and masked models, 25 for T2M-HiFiGPT's 8 frames) with guidance 
 "batch B" is B such motions stepped together. Decoding (decoder.onnx, on the same providers) is timed apart and added
 to both columns, which differ only in sampling. Speed depends on sizes, not values, so random weights at the
 release sizes give the releases' speed (T2M-GPT: 228M-parameter GPT, t2m/export/bench/models.py; MoMask: 8 + 8
-layers of 384, tests/export/momask_release_files.py). The embedded bundles run their own graphs (int8 step graphs
+layers of 384, t2m/families/masked/momask_release.py). The embedded bundles run their own graphs (int8 step graphs
 included, as served); their PyTorch column uses random modules of the manifest's sizes (the masked model's
 transformer sizes are not in its manifest: no PyTorch column).
 

@@ -1,15 +1,15 @@
 """Speed of the released models (T2M-GPT, MoMask, MoGenTS; MDM 1000-step and 50-step, DiP) at their released sizes.
 
 No released weights can be fetched here, so each release is written with random values in its exact file layout by
-the test suite's writers (tests/export/*_release_files.py, t2m_gpt_release_keys.py), imported with the importers
+each family's writer (t2m/families/*/*_release.py, shared with the tests), imported with the importers
 `t2m import` runs (OpenAI's CLIP ViT-B/32 text tower at full size, random, in OpenAI's TorchScript format from
-tests/model/openai_clip_format.py), quantised as `t2m import --quantize` / `t2m quantize` quantise them (--schemes:
+t2m/testing/clip_release.py), quantised as `t2m import --quantize` / `t2m quantize` quantise them (--schemes:
 each bundle's token graphs as int8, int4, fp16; parity is the slow tests' subject, not measured here), and every
 bundle is timed by `t2m bench --bundle`'s code (t2m.export.bench.bundles: text / codes / decode per request, a 10 s
 motion and a 3-sentence stream), one table per thread count. Speed depends on sizes, not values, so these are the
 figures of the real releases on this machine; the figures are printed, never asserted.
 
-The diffusion family (MDM's paper model with 1000 steps, MDM-50, DiP; tests/export/mdm_release_files.py, DistilBERT
+The diffusion family (MDM's paper model with 1000 steps, MDM-50, DiP; t2m/families/diffusion/mdm_release.py, DistilBERT
 at distilbert-base-uncased's sizes with the bert-base-uncased vocabulary MiniLM ships, HumanML3D's Mean/Std of the
 test fixtures) gets a table of its own beside them, on 1 and 2 threads (--diffusion-threads): ms per denoiser call
 (guidance's 2 rows batched; MDM at 196 frames, DiP at 20 + 40), a DiP call (2 s of motion: 10 steps), a DiP 10 s
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -37,26 +36,24 @@ from pathlib import Path
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests" / "export"))   # the release writers are test helpers
-
-from mdm_release_files import RELEASE_SIZES as MDM_RELEASE  # type: ignore[import-not-found]  # noqa: E402
-from mdm_release_files import make_release as write_mdm  # noqa: E402
-from mogents_release_files import RELEASE as MOGENTS_RELEASE  # type: ignore[import-not-found]  # noqa: E402
-from mogents_release_files import release_states as mogents_states  # noqa: E402
-from mogents_release_files import write_release as write_mogents  # noqa: E402
-from momask_release_files import RELEASE as MOMASK_RELEASE  # type: ignore[import-not-found]  # noqa: E402
-from momask_release_files import release_states as momask_states  # noqa: E402
-from momask_release_files import write_release as write_momask  # noqa: E402
-from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]  # noqa: E402
 
 from t2m.export.bench.bundles import run_bundle_bench  # noqa: E402
+from t2m.families.diffusion.distilbert_release import RELEASE as BERT_RELEASE  # noqa: E402
+from t2m.families.diffusion.distilbert_release import write_distilbert_folder  # noqa: E402
 from t2m.families.diffusion.importer import import_dip, import_mdm  # noqa: E402
+from t2m.families.diffusion.mdm_release import RELEASE_SIZES as MDM_RELEASE  # noqa: E402
+from t2m.families.diffusion.mdm_release import make_release as write_mdm  # noqa: E402
 from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt  # noqa: E402
+from t2m.families.gpt.t2m_gpt_release import release_gpt_state, release_vq_state, write_release_files  # noqa: E402
 from t2m.families.masked.import_mogents import import_mogents  # noqa: E402
 from t2m.families.masked.import_momask import import_momask  # noqa: E402
-from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE  # noqa: E402
-from tests.diffusion.distilbert_folder import write_distilbert_folder  # noqa: E402
-from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive  # noqa: E402
+from t2m.families.masked.mogents_release import RELEASE as MOGENTS_RELEASE  # noqa: E402
+from t2m.families.masked.mogents_release import release_states as mogents_states  # noqa: E402
+from t2m.families.masked.mogents_release import write_release as write_mogents  # noqa: E402
+from t2m.families.masked.momask_release import RELEASE as MOMASK_RELEASE  # noqa: E402
+from t2m.families.masked.momask_release import release_states as momask_states  # noqa: E402
+from t2m.families.masked.momask_release import write_release as write_momask  # noqa: E402
+from t2m.testing.clip_release import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive  # noqa: E402
 from tests.shared_data import HUMANML3D_SAMPLE  # noqa: E402
 
 

@@ -32,7 +32,7 @@ t2m train evaluator --data "$DATA" --out "$RUNS/evaluator" --text-cache "$RUNS/t
 
 # The bundle: float32 decoder and GPT step graphs, int8 text encoder (41 MB in all), with the model card appended.
 t2m export --vq "$RUNS/vq" --gpt "$RUNS/gpt" --int8 text --name t2m-bandai-minilm --version 0.3.0 \
-  --model-card docs/model_card_gpt.md -o t2m/bundles/gpt
+  --model-card t2m/families/gpt/model_card.md -o t2m/bundles/gpt
 # The index of the training captions and its calibrated unknown-text threshold (+4.8 MB, ~10 s; the card gets its
 # "Unknown sentences" section with the false/missed warning rates).
 t2m index-captions t2m/bundles/gpt --data "$DATA"

@@ -62,7 +62,7 @@ t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --
 #    0.3.0: the same export with stage 2c's decoder (--vq rvq_causal; the step graphs and text encoder come out byte
 #    for byte as 0.2.1's: export is deterministic and the GPT and codebooks are the same).
 t2m export --family hifigpt --vq "$RUNS/rvq_causal" --hifigpt "$RUNS/hifigpt" --int8 text,temporal,residual \
-  --name t2m-bandai-hifigpt-minilm --version 0.3.0 --model-card docs/model_card_hifigpt.md -o t2m/bundles/default
+  --name t2m-bandai-hifigpt-minilm --version 0.3.0 --model-card t2m/families/hifigpt/model_card.md -o t2m/bundles/default
 t2m index-captions t2m/bundles/default --data "$DATA"
 python scripts/share_bundle_files.py      # the gpt and masked bundles link the default's text files
 

@@ -71,10 +71,10 @@ t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/
   --out "$RUNS/eval_masked.md"
 
 # 6. The bundle (int8 text encoder and token graphs: the two embedded bundles must stay under 100 MB; the card says
-#    what int8 costs), its caption index, the probes. The card (docs/model_card_masked.md) carries the tables above.
+#    what int8 costs), its caption index, the probes. The card (t2m/families/masked/model_card.md) carries the tables above.
 t2m export --family masked --vq "$RUNS/joint_vq" --masked "$RUNS/masked" --residual "$RUNS/residual" \
   --length "$RUNS/length" --steps 10 --guidance 4 --residual-guidance 5 --top-k 26 --residual-top-k 26 --int8 all \
-  --name t2m-bandai-masked-minilm --version 0.2.0 --model-card docs/model_card_masked.md -o t2m/bundles/masked
+  --name t2m-bandai-masked-minilm --version 0.2.0 --model-card t2m/families/masked/model_card.md -o t2m/bundles/masked
 t2m index-captions t2m/bundles/masked --data "$DATA"
 python benchmarks/probes.py --bundle t2m/bundles/masked --seeds 5 --json-out "$RUNS/probes_masked.json"
 

@@ -41,7 +41,7 @@ ALLOWED_OURS = {
     # the exporter computes a bundle's caption index with the runtime's own text path (same features)
     "export": {"export", "model", "motion", "bundle", "decoding", "bundles", "runtime", "api"},
     "families": {"families", "bundle", "runtime", "api", "export", "model", "decoding", "motion", "bundles"},
-    # the CLI runs the runtime and the offline code; `t2m serve` is plugged in by the service (t2m.commands)
+    # the CLI runs the runtime and the offline code; `t2m serve` is plugged in by the service (t2m-service.commands)
     "cli": {"cli", "runtime", "api", "export", "model", "motion", "bundle", "bundles", "decoding"},
 }
 # no HTTP framework below the service: the runtime, the API's models and the families' served code run without one

@@ -14,7 +14,6 @@ import pytest
 import torch
 from beside_default import THREE_SENTENCES, check_beside_default
 from served_reference import clip_features, compare_served, gpt_motion, within_rounding
-from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files
 
 from t2m.cli.main import main as t2m
 from t2m.export.graphs.export import ort_session
@@ -29,8 +28,9 @@ from t2m.families.gpt.import_t2m_gpt import (
 )
 from t2m.families.gpt.network import GPTConfig, MotionGPT
 from t2m.families.gpt.random_bundle import build_random_bundle
+from t2m.families.gpt.t2m_gpt_release import release_gpt_state, release_vq_state, write_release_files
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
-from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
 
 SMALL_VQ = {"width": 64, "code_dim": 32, "nb_code": 64, "down_t": 2, "depth": 3}
 SMALL_GPT = {"codebook": 64, "embed": 128, "layers": (2, 2), "block": 51, "text_dim": 512}

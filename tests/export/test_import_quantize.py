@@ -23,22 +23,22 @@ from pathlib import Path
 
 import onnx
 import pytest
-from mogents_release_files import RELEASE as MOGENTS_RELEASE  # type: ignore[import-not-found]
-from mogents_release_files import SMALL as MOGENTS_SMALL
-from mogents_release_files import release_states as mogents_states
-from mogents_release_files import write_release as write_mogents
-from momask_release_files import RELEASE as MOMASK_RELEASE  # type: ignore[import-not-found]
-from momask_release_files import SMALL as MOMASK_SMALL
-from momask_release_files import release_states as momask_states
-from momask_release_files import write_release as write_momask
 from quantized_copies import printed_json, run_t2m, with_doubled_weights  # type: ignore[import-not-found]
-from t2m_gpt_release_keys import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]
 
 from t2m.cli.main import main as t2m
 from t2m.export.writing.bundle_parity import compare_bundles
 from t2m.export.writing.int8 import quantized_graphs
 from t2m.families.gpt.random_bundle import build_random_bundle
-from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+from t2m.families.gpt.t2m_gpt_release import release_gpt_state, release_vq_state, write_release_files  # type: ignore[import-not-found]
+from t2m.families.masked.mogents_release import RELEASE as MOGENTS_RELEASE  # type: ignore[import-not-found]
+from t2m.families.masked.mogents_release import SMALL as MOGENTS_SMALL
+from t2m.families.masked.mogents_release import release_states as mogents_states
+from t2m.families.masked.mogents_release import write_release as write_mogents
+from t2m.families.masked.momask_release import RELEASE as MOMASK_RELEASE  # type: ignore[import-not-found]
+from t2m.families.masked.momask_release import SMALL as MOMASK_SMALL
+from t2m.families.masked.momask_release import release_states as momask_states
+from t2m.families.masked.momask_release import write_release as write_momask
+from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
 
 IMPORTERS = ("t2m-gpt", "momask", "mogents")
 SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}

@@ -4,7 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from synthetic_motion_data import make_dataset
+
+from tests.model.synthetic_motion_data import make_dataset
 
 
 @pytest.fixture(scope="module")

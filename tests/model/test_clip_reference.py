@@ -28,7 +28,7 @@ open_clip = pytest.importorskip("open_clip", reason="needs the [clip] extra (its
 from t2m.model.data.captions import make_captions  # noqa: E402
 from t2m.model.networks.clip_tokenizer import build_clip_tokenizer  # noqa: E402
 from t2m.model.networks.clip_weights import load_clip_text  # noqa: E402
-from tests.model.openai_clip_format import released_format, save_torchscript_archive  # noqa: E402
+from t2m.testing.clip_release import released_format, save_torchscript_archive  # noqa: E402
 
 torch.set_num_threads(1)
 SOT, EOT = 49406, 49407

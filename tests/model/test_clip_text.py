@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from t2m.model.networks.clip_text import ClipTextConfig
 from t2m.model.networks.clip_weights import ClipWeightsError, load_clip_text, read_clip_state
 from t2m.model.networks.text_encoders import ClipEncoder, get_text_encoder
-from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
 
 torch.set_num_threads(1)
 SMALL = {"width": 128, "layers": 2, "embed_dim": 48}  # 2 heads of 64, OpenAI's vocabulary and context

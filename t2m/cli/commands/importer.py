@@ -10,18 +10,18 @@ graph and tokenizer of an existing bundle instead (e.g. an earlier import).
 
     t2m import momask checkpoints/t2m --clip ViT-B-32.pt -o models/momask
 
-reads MoMask's release as it unpacks (docs/masked-family.md "Importing MoMask"); --vq/--mean/--std/--masked/
+reads MoMask's release as it unpacks (t2m/families/masked/README.md "Importing MoMask"); --vq/--mean/--std/--masked/
 --residual/--length name single files instead.
 
     t2m import mogents logs/humanml3d --clip ViT-B-32.pt -o models/mogents
 
-reads MoGenTS's release likewise (docs/masked-family.md "Importing MoGenTS"), with the same file options.
+reads MoGenTS's release likewise (t2m/families/masked/README.md "Importing MoGenTS"), with the same file options.
 
     t2m import mdm save/humanml_trans_enc_512 --clip ViT-B-32.pt --humanml3d dataset/HumanML3D -o models/mdm
     t2m import dip save/DiP_no-target_10steps_context20_predict40 --bert distilbert-base-uncased \
         --humanml3d dataset/HumanML3D -o models/dip
 
-read MDM's and DiP's release folders (args.json + model<step>.pt; docs/diffusion-family.md "Importing MDM and
+read MDM's and DiP's release folders (args.json + model<step>.pt; t2m/families/diffusion/README.md "Importing MDM and
 DiP"): the CLIP file for MDM's CLIP releases, a Hugging Face distilbert-base-uncased folder for the DistilBERT ones
 and DiP, and HumanML3D's Mean.npy / Std.npy (not in the release folder).
 """

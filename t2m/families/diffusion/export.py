@@ -1,4 +1,4 @@
-"""An MDM / DiP module (t2m.families.diffusion.network) -> a diffusion-family bundle (docs/diffusion-family.md).
+"""An MDM / DiP module (t2m.families.diffusion.network) -> a diffusion-family bundle (t2m/families/diffusion/README.md).
 
 `export_diffusion_bundle` is what the importers (`t2m import mdm|dip`) and the tiny random bundles call: the module's
 denoiser graph, the de-normalising decoder, the text graph of a TextSource (pooled features for MDM's CLIP, token

@@ -1,4 +1,5 @@
-"""The diffusion family's graphs (t2m/families/diffusion/family.py gives their signatures; docs/diffusion-family.md):
+"""The diffusion family's graphs (t2m/families/diffusion/family.py gives their signatures;
+t2m/families/diffusion/README.md):
 
 - denoiser.onnx: one diffusion step of a batch, MDM.forward: x_t [B, T, F], t [B] (integer steps), text [B, Dt]
   (pooled) or [B, L, Dt] + text_mask bool [B, L] (token states), length [B] (only for models that mask padded

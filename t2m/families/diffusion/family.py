@@ -9,7 +9,8 @@ normalised frames (frames_per_token 1) and its decoder.onnx only de-normalises t
   standing pose stored in the bundle (`prefix`).
 
 The family's code lives in t2m.families.diffusion.loop (the loop), t2m.families.diffusion.served (served) and
-t2m.families.diffusion.export (export; the importers write this format). docs/diffusion-family.md describes the bundle.
+t2m.families.diffusion.export (export; the importers write this format). t2m/families/diffusion/README.md describes the
+bundle.
 """
 from __future__ import annotations
 
@@ -57,7 +58,7 @@ FIXED_COMMON = {"frames_per_token": 1, "codebook_size": 1, "residual_layers": 1}
 
 @dataclass(frozen=True)
 class DiffusionSettings:
-    """The `diffusion` block (docs/diffusion-family.md)."""
+    """The `diffusion` block (t2m/families/diffusion/README.md)."""
 
     arch: str
     steps: int

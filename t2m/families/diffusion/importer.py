@@ -11,7 +11,7 @@ name, as another de-normalisation.
 Settings: guidance 2.5 (generate.py's default) for MDM, 7.5 for DiP (DiP.md); a release trained without condition
 dropout (``cond_mask_prob`` 0) samples without guidance, as generate.py forces it. Segments: MDM at most 196 frames
 (generate.py); a DiP sentence at most ``DIP_MAX_FRAMES`` (its code has no limit of its own). DiP's first prefix is
-the standing pose of ``standing_prefix`` (docs/diffusion-family.md).
+the standing pose of ``standing_prefix`` (t2m/families/diffusion/README.md).
 """
 from __future__ import annotations
 

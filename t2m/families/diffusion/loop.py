@@ -24,7 +24,7 @@ What the service adds for a request of several sentences (segments of exact fram
   of every sentence after the first cross-fades the condition: its conditional prediction is w (new text) + (1 - w)
   (previous text), w rising linearly from 0 at its first frame to 1 at frame F, then guided as usual. Switched at
   full guidance, the new text's prediction is pushed away from the prefix's motion and the join is a near cut
-  (docs/diffusion-family.md measures both).
+  (t2m/families/diffusion/README.md measures both).
 - MDM (:func:`join_windows`): each sentence is one whole motion; at each join a window is denoised again with
   known frames on its two sides (MDM's own in-betweening, edit.py's in_between mode) so the join is made anew.
 

@@ -12,7 +12,8 @@ shapes cannot tell is the release's value:
 - the dilation growth of the VQ's residual blocks: 3 (dilations 9, 3, 1).
 
 The decoding settings are the release's evaluation settings (:func:`release_decoding`); the loop
-(t2m.families.masked.loop) computes MoMask's ``generate`` with them, see docs/masked-family.md "Importing MoMask".
+(t2m.families.masked.loop) computes MoMask's ``generate`` with them, see t2m/families/masked/README.md "Importing
+MoMask".
 """
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """The model card text of a MoGenTS import: the source files, the sizes read from them, the release's settings,
 which of the release's quirks are kept and why, what cannot be exact, and the release's terms.
 
-Kept apart from the importer so the statement of exactness is one readable text (docs/masked-family.md repeats it).
+Kept apart from the importer so the statement of exactness is one readable text (t2m/families/masked/README.md repeats
+it).
 """
 from __future__ import annotations
 
@@ -23,8 +24,9 @@ TRAINING_DATA = {
                                "et al., 2016) in HumanML3D's feature layout.")},
 }
 # Measured by tests/export/test_mogents_import.py::test_full_release_sizes_match_the_reference (slow suite) at the
-# released sizes with random weights, against tests/export/mogents_reference.py (an independent re-implementation
-# of MoGenTS's forward passes, quirks included, and its generate loops): see docs/masked-family.md.
+# released sizes with random weights, against tests/families/masked/mogents_reference.py (an independent
+# re-implementation
+# of MoGenTS's forward passes, quirks included, and its generate loops): see t2m/families/masked/README.md.
 VERIFIED = ("at the released sizes with random weights, logits of the imported modules vs the reference max |diff| "
             "3.0e-6 (ts mask, logits up to 2.9), 9.2e-6 (ts residual, up to 8.5), 2.3e-6 (aux mask), 6.8e-6 (aux "
             "residual), of the ONNX graphs 4.0e-6, 8.6e-6, 3.1e-6, 9.1e-6; the service's token maps over the graphs "

@@ -1,7 +1,8 @@
 """The model card text of a MoMask import: the source files, the sizes read from them, the release's settings, what is
 exactly MoMask's computation and what cannot be, and the release's terms.
 
-Kept apart from the importer so the statement of exactness is one readable text (docs/masked-family.md repeats it).
+Kept apart from the importer so the statement of exactness is one readable text (t2m/families/masked/README.md repeats
+it).
 """
 from __future__ import annotations
 
@@ -24,8 +25,9 @@ TRAINING_DATA = {
                                "2016) in HumanML3D's feature layout.")},
 }
 # Measured by tests/export/test_momask_import.py::test_full_release_sizes_match_the_reference (slow suite) at the
-# released sizes with random weights, against tests/export/momask_reference.py (an independent re-implementation
-# of MoMask's modules and generate loops): see docs/masked-family.md "Importing MoMask".
+# released sizes with random weights, against tests/families/masked/momask_reference.py (an independent
+# re-implementation
+# of MoMask's modules and generate loops): see t2m/families/masked/README.md "Importing MoMask".
 VERIFIED = ("at the released sizes with random weights, logits of the imported modules vs the reference max |diff| "
             "2.7e-6 (masked, logits up to 3.5) and 9.7e-6 (residual, up to 9.1), of the ONNX graphs 3.0e-6 and 1.0e-5; "
             "the service's token maps over the graphs identical to the reference `generate` at top-k 1 (lengths 49, "

@@ -8,7 +8,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from synthetic_motion_data import _source_motion
 
 from t2m.families.masked.length_estimator import LengthEstimator, LengthEstimatorConfig, sample_length
 from t2m.families.masked.masked_transformer import MaskedTransformer
@@ -29,6 +28,7 @@ from t2m.model.networks.joint_layout import (
 from t2m.model.networks.joint_vqvae import JointVQConfig, JointVQVAE
 from t2m.model.networks.token_transformer import TokenTransformerConfig
 from t2m.model.training.train_vq import vq_loss
+from tests.model.synthetic_motion_data import _source_motion
 
 torch.set_num_threads(1)
 

@@ -1,6 +1,8 @@
-"""`t2m import mogents` on random-weight checkpoints in the release's exact layout (mogents_release_files.py),
+"""`t2m import mogents` on random-weight checkpoints in the release's exact layout
+(t2m/families/masked/mogents_release.py),
 compared with an independent re-implementation of MoGenTS's computation, quirks included
-(tests/export/mogents_reference.py; its 1D models are momask_reference.py's): logits of the loaded modules and of
+(tests/families/masked/mogents_reference.py; its 1D models are momask_reference.py's): logits of the loaded modules and
+of
 the bundle's graphs, token maps of the service's loop over the bundle vs MoGenTS's generate loops at top-k 1 (both
 branches), decoded features vs the reference fused decode; the CLI end to end into a served bundle; one line for
 each refusal; a served motion equal to the PyTorch reference decode at the release's settings for a seed; the import
@@ -19,9 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from beside_default import THREE_SENTENCES, check_beside_default
 from mogents_reference import ReferenceMask2d, ReferenceResidual2d, fused_decode, generate_ts
-from mogents_release_files import RELEASE, SMALL, MogentsSizes, MogentsStates, release_states, write_release
 from momask_reference import (
     ReferenceMaskTransformer,
     ReferenceResidualTransformer,
@@ -29,15 +29,24 @@ from momask_reference import (
     generate_residual_stage,
     remask_count,
 )
-from served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 from t2m.cli.main import main as t2m
 from t2m.export.graphs.export import ort_session
 from t2m.families.masked.import_mogents import import_mogents, load_mogents, release_decoding
 from t2m.families.masked.loop import remask_counts
 from t2m.families.masked.mogents_files import locate_release
+from t2m.families.masked.mogents_release import (
+    RELEASE,
+    SMALL,
+    MogentsSizes,
+    MogentsStates,
+    release_states,
+    write_release,
+)
 from t2m.runtime.types import GenerationRequest, SegmentRequest
-from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
+from tests.export.beside_default import THREE_SENTENCES, check_beside_default
+from tests.export.served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}
 LENGTHS = [11, 7, 2, 1]                    # token rows of one request's segments
@@ -502,7 +511,7 @@ def test_without_clip_the_import_says_what_it_needs(release, tmp_path, capsys):
 def test_full_release_sizes_match_the_reference(tmp_path, clip_archive, capsys):
     """The released sizes (113.8M VQ, 34.2M / 35.9M 2D transformers, 12.0M / 13.4M aux; random values) through the
     CLI: module and graph logits, token maps of the served bundle at top-k 1 and the decode vs the reference.
-    Prints the measured figures (docs/masked-family.md "Importing MoGenTS")."""
+    Prints the measured figures (t2m/families/masked/README.md "Importing MoGenTS")."""
     release = make_release(tmp_path, RELEASE)
     out = tmp_path / "bundle"
     code, _ = run_cli(str(release.logs), "--clip", str(clip_archive), "-o", str(out))

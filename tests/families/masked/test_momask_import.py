@@ -1,5 +1,6 @@
-"""`t2m import momask` on random-weight checkpoints in the release's exact layout (momask_release_files.py), compared
-with an independent re-implementation of MoMask's computation (tests/export/momask_reference.py): logits of
+"""`t2m import momask` on random-weight checkpoints in the release's exact layout
+(t2m/families/masked/momask_release.py), compared
+with an independent re-implementation of MoMask's computation (tests/families/masked/momask_reference.py): logits of
 the loaded modules and of the bundle's graphs, token maps of the service's loop over the bundle vs MoMask's
 ``generate`` at top-k 1, decoded features vs the reference RVQ decode; the CLI end to end into a served bundle; one
 line for each refusal; a served motion equal to the PyTorch reference decode at the release's settings for a seed;
@@ -16,7 +17,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from beside_default import THREE_SENTENCES, check_beside_default
 from momask_reference import (
     ReferenceMaskTransformer,
     ReferenceResidualTransformer,
@@ -25,17 +25,18 @@ from momask_reference import (
     remask_count,
     rvq_decode,
 )
-from momask_release_files import RELEASE, SMALL, MomaskSizes, ReleaseStates, release_states, write_release
-from served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 from t2m.cli.main import main as t2m
 from t2m.export.graphs.export import ort_session
 from t2m.families.masked.import_momask import import_momask, load_momask, release_decoding, release_top_k
 from t2m.families.masked.loop import remask_counts
 from t2m.families.masked.momask_files import kit_fps_note, locate_release
+from t2m.families.masked.momask_release import RELEASE, SMALL, MomaskSizes, ReleaseStates, release_states, write_release
 from t2m.families.masked.sampling import generate_token_maps
 from t2m.runtime.types import GenerationRequest, SegmentRequest
-from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
+from tests.export.beside_default import THREE_SENTENCES, check_beside_default
+from tests.export.served_reference import Generator, clip_features, compare_served, masked_motion, within_rounding
 
 SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}   # MoMask's 512-d text features, a small tower
 LENGTHS = [49, 37, 12, 7, 2, 1]                                # token rows; odd ones hit the schedule's exact halves

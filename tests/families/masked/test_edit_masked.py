@@ -14,7 +14,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from test_edit import THREE, assert_rigidly_moved, edit, generate, guaranteed_prefix, request_of
 
 from t2m.api.schemas import EditRequest
 from t2m.runtime.editing import EditError, edit_in_process, plan_edit
@@ -22,6 +21,7 @@ from t2m.runtime.engine import OnnxEngine
 from t2m.runtime.handles import make_handle, read_handle, segment_seed
 from t2m.runtime.reach import probe_reach
 from t2m.service.settings import Settings
+from tests.service.test_edit import THREE, assert_rigidly_moved, edit, generate, guaranteed_prefix, request_of
 
 
 @pytest.fixture(scope="module")

@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
-from mdm_release_files import RELEASE_SIZES, make_release, small_clip_archive  # type: ignore[import-not-found]
-from quantized_copies import printed_json, run_t2m, with_doubled_weights  # type: ignore[import-not-found]
 
 from t2m.export.writing.bundle_parity import compare_bundles
+from t2m.families.diffusion.mdm_release import RELEASE_SIZES, make_release, small_clip_archive  # type: ignore[import-not-found]
 from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
+from tests.export.quantized_copies import printed_json, run_t2m, with_doubled_weights  # type: ignore[import-not-found]
 from tests.shared_data import HUMANML3D_SAMPLE
 
 OPS = {"int8": "MatMulInteger", "int4": "MatMulNBits"}
@@ -107,7 +107,7 @@ def test_import_mdm_quantize_int8_writes_the_quantised_denoiser_and_a_float32_im
 def test_released_sizes_quantised_diffusion_import(name, tmp_path, capsys):
     """MDM-50 and DiP at their released sizes (random weights, the small text encoders): int8 against the float32
     import, two seeded 2 s requests. Prints the figures."""
-    from mdm_release_files import small_bert_folder  # type: ignore[import-not-found]
+    from t2m.families.diffusion.mdm_release import small_bert_folder  # type: ignore[import-not-found]
 
     folder, _ = make_release(tmp_path / "release", name, RELEASE_SIZES)
     text = (["--bert", str(small_bert_folder(tmp_path))] if name == "dip"

@@ -17,6 +17,7 @@ import torch
 from t2m.export.graphs.export import ort_session
 from t2m.export.kit.text_sources import mdm_clip_text_source, token_states_text_source
 from t2m.families.diffusion.distilbert import DistilBert, DistilBertConfig, build_wordpiece_tokenizer, load_distilbert
+from t2m.families.diffusion.distilbert_release import RELEASE, hub_state, tiny_vocab, write_distilbert_folder
 from t2m.families.diffusion.text_encoders import (
     MDM_CLIP_CONTEXT,
     MdmClipEncoder,
@@ -26,8 +27,7 @@ from t2m.families.diffusion.text_encoders import (
     minilm_token_encoder,
 )
 from t2m.model.networks.text_encoders import ClipEncoder, minilm_model_dir
-from tests.diffusion.distilbert_folder import RELEASE, hub_state, tiny_vocab, write_distilbert_folder
-from tests.model.openai_clip_format import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import VIT_B_32_TEXT, openai_clip_state, save_torchscript_archive
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")

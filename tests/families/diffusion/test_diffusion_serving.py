@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from served_stream import check_whole_and_streamed
 
 from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle, random_diffusion_model
+from tests.service.served_stream import check_whole_and_streamed
 
 torch.set_num_threads(1)
 

@@ -1,6 +1,7 @@
 """The front half of `t2m import mdm` / `t2m import dip` (t2m.families.diffusion.import_mdm, dip, mdm_files) on
 random-weight
-releases in the official layout (mdm_release_files.py): the paper model, the 50-step model, the DistilBERT variant
+releases in the official layout (t2m/families/diffusion/mdm_release.py): the paper model, the 50-step model, the
+DistilBERT variant
 and DiP, read into our modules (the denoiser equal to a fresh module holding the release's tensors; the EMA choice of
 args.json), their text encoders (OpenAI's ViT-B-32.pt cut to 20 tokens, a DistilBERT folder); one line for each
 refusal. Small sizes here; the released sizes in the slow tests."""
@@ -13,7 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from mdm_release_files import (
+
+from t2m.export.graphs.export import ort_session
+from t2m.export.kit.text_sources import token_states_text_source
+from t2m.families.diffusion.distilbert_release import RELEASE as BERT_RELEASE
+from t2m.families.diffusion.distilbert_release import hub_state, tiny_vocab, write_distilbert_folder
+from t2m.families.diffusion.import_card import release_notes
+from t2m.families.diffusion.import_dip import load_dip_release
+from t2m.families.diffusion.import_mdm import load_mdm_release
+from t2m.families.diffusion.mdm_release import (
     RELEASE_SIZES,
     RELEASES,
     SMALL_BERT,
@@ -23,17 +32,9 @@ from mdm_release_files import (
     small_bert_folder,
     small_clip_archive,
 )
-
-from t2m.export.graphs.export import ort_session
-from t2m.export.kit.text_sources import token_states_text_source
-from t2m.families.diffusion.import_card import release_notes
-from t2m.families.diffusion.import_dip import load_dip_release
-from t2m.families.diffusion.import_mdm import load_mdm_release
 from t2m.families.diffusion.network import MDM, DiffusionConfig
 from t2m.families.diffusion.text_encoders import MdmClipEncoder, TokenStateEncoder
-from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE
-from tests.diffusion.distilbert_folder import hub_state, tiny_vocab, write_distilbert_folder
-from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,6 @@
 """`t2m import mdm` / `t2m import dip` end to end (t2m.families.diffusion.importer) on random-weight releases
-in the official layout (mdm_release_files.py): import -> verified bundle -> served over HTTP / by the engine -> the
+in the official layout (t2m/families/diffusion/mdm_release.py): import -> verified bundle -> served over HTTP / by the
+engine -> the
 ONNX denoiser against the imported PyTorch module inside a served run with the same injected noise; every refusal
 one line with exit 2. Small sizes here; at the released sizes (slow) a whole seeded sampling run of the served
 bundle against the PyTorch reference of the official loop (t2m.families.diffusion.sampling), MDM-50 and DiP."""
@@ -12,21 +13,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from mdm_release_files import (
+
+from t2m.cli.main import main as t2m
+from t2m.families.diffusion.distilbert_release import RELEASE as BERT_RELEASE
+from t2m.families.diffusion.distilbert_release import hub_state, tiny_vocab, write_distilbert_folder
+from t2m.families.diffusion.import_dip import load_dip_release
+from t2m.families.diffusion.import_mdm import load_mdm_release
+from t2m.families.diffusion.loop import noise_from
+from t2m.families.diffusion.mdm_release import (
     RELEASE_SIZES,
     make_release,
     small_bert_folder,
     small_clip_archive,
 )
-
-from t2m.cli.main import main as t2m
-from t2m.families.diffusion.import_dip import load_dip_release
-from t2m.families.diffusion.import_mdm import load_mdm_release
-from t2m.families.diffusion.loop import noise_from
 from t2m.families.diffusion.sampling import TorchDenoiser, reference_chain, reference_sample
 from t2m.families.diffusion.served import OnnxDenoiser
-from tests.diffusion.distilbert_folder import RELEASE as BERT_RELEASE
-from tests.diffusion.distilbert_folder import hub_state, tiny_vocab, write_distilbert_folder
 from tests.shared_data import HUMANML3D_SAMPLE
 
 COMMAND = {"paper": "mdm", "fifty": "mdm", "bert": "mdm", "dip": "dip"}

@@ -2,7 +2,7 @@
 ``logs/humanml3d/pretrain_{vq,mtrans,rtrans}`` and ``checkpoints/humanml3d/length_estimator``, the top-level keys
 of the best-FID files (or of latest.tar, with optimiser and scheduler entries), state-dict key names and shapes.
 Built from the facts' table, not from our modules, so the importer's strict loads test the layout. The aux models
-and the 1D VQ keys are MoMask's (momask_release_files.py) under MoGenTS's names.
+and the 1D VQ keys are MoMask's (momask_release.py) under MoGenTS's names.
 
 Sizes are parameters: the release's (``RELEASE``) in the slow test, small ones in the default suite.
 """
@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from momask_release_files import (
+
+from t2m.families.masked.momask_release import (
     MomaskSizes,
     _encoder_layers,
     _Random,

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import torch
 
+from t2m.families.diffusion.distilbert_release import write_distilbert_folder
 from t2m.families.gpt.network import sinusoid_table
-from tests.diffusion.distilbert_folder import write_distilbert_folder
-from tests.model.openai_clip_format import openai_clip_state, save_torchscript_archive
+from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
 
 
 @dataclass(frozen=True)

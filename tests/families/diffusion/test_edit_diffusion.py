@@ -19,7 +19,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from test_edit import assert_rigidly_moved
 
 from t2m.api.schemas import EditRequest
 from t2m.families.diffusion.edits import edit_recipe, replay
@@ -31,6 +30,7 @@ from t2m.runtime.handles import HandleError, handle_model, make_handle, segment_
 from t2m.runtime.recipes import MAX_EDIT_STEPS, RECIPE_PREFIX, read_recipe
 from t2m.runtime.types import GenerationRequest, SegmentRequest
 from t2m.service.settings import Settings
+from tests.service.test_edit import assert_rigidly_moved
 
 torch.set_num_threads(1)
 
