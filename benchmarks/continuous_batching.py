@@ -10,7 +10,7 @@ Both servers get a warm-up request first; latencies of all rounds are pooled per
 (CPU, cores, load average before and after) is printed with the tables, so a run on a shared machine says so.
 Loopback only; bounded like load_test.py.
 
-    python benchmarks/continuous_batching.py --model t2m/bundles/gpt --seconds 30 --rounds 2
+    python -m benchmarks.continuous_batching --model t2m/bundles/gpt --seconds 30 --rounds 2
 """
 from __future__ import annotations
 
@@ -18,8 +18,6 @@ import argparse
 import asyncio
 import functools
 import json
-import os
-import platform
 import random
 import sys
 import time
@@ -28,10 +26,9 @@ from pathlib import Path
 
 import httpx
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, SENTENCES, PhaseResult, post_and_record
-from benchmarks.server_process import require_loopback, running_server
+from t2m.bench.machine import machine_facts as machine
+from t2m.testing.server_process import require_loopback, running_server
 
 __all__ = ["MODES", "WORKLOADS", "machine", "main", "run_workload", "warm_up"]
 
@@ -87,16 +84,6 @@ def warm_up(url: str) -> None:
     with httpx.Client(timeout=600.0) as client:
         for seconds, sentences in ((2.0, 1), (10.0, 3)):
             client.post(f"{url}/generate", json=_body(rng, seconds, sentences)).raise_for_status()
-
-
-def machine() -> dict[str, str]:
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                if line.startswith("model name")), platform.processor())
-    import numpy
-    import onnxruntime
-    return {"cpu": f"{cpu} ({os.cpu_count()} cores visible)",
-            "load_average": " ".join(f"{x:.2f}" for x in os.getloadavg()), "python": platform.python_version(),
-            "onnxruntime": onnxruntime.__version__, "numpy": numpy.__version__}
 
 
 def _pool(phases: list[PhaseResult]) -> PhaseResult:
@@ -177,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"- CPU: {before['cpu']}; Python {before['python']}, onnxruntime {before['onnxruntime']}, "
           f"numpy {before['numpy']}; servers T2M_INTRA_OP_THREADS={args.intra_op_threads}")
     print(f"- load average (1, 5, 15 min): {before['load_average']} before, {after['load_average']} after")
-    print(f"- command: python benchmarks/continuous_batching.py {' '.join(argv if argv is not None else sys.argv[1:])}")
+    print(f"- command: python -m benchmarks.continuous_batching {' '.join(argv if argv is not None else sys.argv[1:])}")
     print()
     print(format_tables(pooled))
     if args.json_out:

@@ -6,7 +6,7 @@ default model 6.3 ms per step of 7 graph calls; T2M-GPT's 228M step 3.6 ms where
 This says how much of a run is kernels on the device, how much is copies between host and device, and which
 operators run on the CPU provider, which decides what to change first (CUDA graphs, device-side sampling, fewer
 shape operators).
-    PYTHONPATH=. python benchmarks/gpu_profile.py --out OUT [--device cuda|cpu] [--models default,t2m-gpt-release]
+    python -m benchmarks.gpu_profile --out OUT [--device cuda|cpu] [--models default,t2m-gpt-release]
         [--graphs float32] [--tiny]
 Prints one table per case; OUT/profile_<case>.json keeps onnxruntime's raw profile of the timed run.
 """
@@ -14,20 +14,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+import onnxruntime as ort
+
+from benchmarks import gpu_suite
+
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-import onnxruntime as ort  # noqa: E402
-
-from benchmarks import gpu_suite  # noqa: E402
 
 PROFILED: list[ort.InferenceSession] = []
 SUITE_SESSION = gpu_suite.session

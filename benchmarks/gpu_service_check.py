@@ -6,14 +6,13 @@ codes, decode), ms in the codes stage and per network call, whether the motions 
 is captured. On 'cpu' the same code runs without capture (the check that this script works before it spends device
 time).
 
-    python benchmarks/gpu_service_check.py --device cuda [--sizes release|small] [--repeats 5]
+    python -m benchmarks.gpu_service_check --device cuda [--sizes release|small] [--repeats 5]
         [--models momask,t2m-gpt] [--schemes float32,fp16]
 """
 from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -22,7 +21,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / "tests" / "export")]   # the tests' release-layout writers
 
 
 def _small_clip(workdir: Path) -> Path:
@@ -126,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
     parser.add_argument("--sizes", choices=("release", "small"), default="release")
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", type=Path, help="folder for gpu_service_check.md (benchmarks/gpu_suite.sh passes "
+    parser.add_argument("--out", type=Path, help="folder for gpu_service_check.md (tools/gpu/run_suite.sh passes "
                                                  "one when it runs this as GPU_SCRIPT)")
     parser.add_argument("--models", default="momask,t2m-gpt", help=f"comma-separated, of {', '.join(IMPORTS)}")
     parser.add_argument("--schemes", default="float32,fp16", help="float32 (as imported) and/or fp16 (t2m quantize)")

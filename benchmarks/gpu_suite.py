@@ -7,13 +7,13 @@ work is the same algorithm; they differ in the network calls. A "10 s motion" is
 the 4-frame GPT and masked models, 25 for T2M-HiFiGPT's 8 frames) with guidance (a cond and a null row each);
 "batch B" is B such motions stepped together. Decoding (decoder.onnx, on the same providers) is timed apart and added
 to both columns, which differ only in sampling. Speed depends on sizes, not values, so random weights at the
-release sizes give the releases' speed (T2M-GPT: 228M-parameter GPT, t2m/export/bench/models.py; MoMask: 8 + 8
+release sizes give the releases' speed (T2M-GPT: 228M-parameter GPT, t2m/bench/models.py; MoMask: 8 + 8
 layers of 384, t2m/families/masked/momask_release.py). The embedded bundles run their own graphs (int8 step graphs
 included, as served); their PyTorch column uses random modules of the manifest's sizes (the masked model's
 transformer sizes are not in its manifest: no PyTorch column).
 
 Needs only numpy, torch, onnx, onnxruntime(-gpu) and this repository (no tokenizers, no service stack, no network):
-    PYTHONPATH=. python benchmarks/gpu_suite.py --out OUT [--device cuda|cpu] [--batches 1,16,64] [--repeats 3]
+    python -m benchmarks.gpu_suite --out OUT [--device cuda|cpu] [--batches 1,16,64] [--repeats 3]
         [--models gpt,default,masked,t2m-gpt-release,momask-release] [--tiny] [--processes 2,4]
 Prints one markdown table, writes OUT/gpu_suite.json (the rows and the machine), and says what is missing (no CUDA
 in torch, no CUDAExecutionProvider in onnxruntime) instead of failing. --tiny: the release cases at toy sizes (the
@@ -35,16 +35,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import onnxruntime as ort
+import torch
+
+from t2m.bench.loops import Generate, gpt_generate, hifigpt_generate, masked_generate, momask_release_decoding
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-import onnxruntime as ort  # noqa: E402
-import torch  # noqa: E402
 
 MODELS = ("gpt", "default", "masked", "t2m-gpt-release", "momask-release")
-Generate = Callable[[int], np.ndarray]      # batch -> codes ready for decoder.onnx
 
 
 @dataclass
@@ -140,47 +138,6 @@ def median_ms(fn: Callable[[], object], repeats: int) -> float:
     return 1000 * statistics.median(times)
 
 
-def _conds(batch: int, dim: int) -> np.ndarray:
-    return np.random.default_rng(batch).normal(size=(batch, dim)).astype(np.float32)
-
-
-def gpt_generate(step: Any, dim: int, tokens: int, max_tokens: int, end_id: int) -> Generate:
-    """B one-segment jobs of `tokens` codes with guidance 3, one GptCohort: codes [B, tokens]."""
-    from t2m.families.gpt.loop import GptCohort, SamplingJob
-
-    def generate(batch: int) -> np.ndarray:
-        jobs = [SamplingJob.of(cond[None], [tokens], max_tokens=max_tokens, guidance=3.0, rng=index)
-                for index, cond in enumerate(_conds(batch, dim))]
-        return np.stack([codes[0] for codes in GptCohort(step, jobs, max_tokens, end_id).run()])  # type: ignore[index]
-    return generate
-
-
-def hifigpt_generate(temporal: Any, residual: Any, dim: int, steps: int, max_tokens: int) -> Generate:
-    """B one-segment jobs of `steps` time steps with guidance 3, one HiFiGPTCohort: codes [B, steps, R]."""
-    from t2m.decoding.lockstep import SamplingJob
-    from t2m.families.hifigpt.loop import HiFiGPTCohort
-
-    def generate(batch: int) -> np.ndarray:
-        jobs = [SamplingJob.of(cond[None], [steps], max_tokens=max_tokens, guidance=3.0, rng=index)
-                for index, cond in enumerate(_conds(batch, dim))]
-        result = HiFiGPTCohort(temporal, residual, jobs, max_tokens).run()
-        return np.stack([codes[0] for codes in result])  # type: ignore[index]
-    return generate
-
-
-def masked_generate(masked: Any, residual: Any, dim: int, rows: int, passes: int,
-                    decoding: dict[str, Any]) -> Generate:
-    """B one-segment jobs of `rows` token rows, `passes` mask steps, the model's guidance and top-k (`decoding`:
-    MaskedJob's fields): maps [B, rows, C, R]."""
-    from t2m.families.masked.loop import MaskedJob, sample_token_maps
-
-    def generate(batch: int) -> np.ndarray:
-        jobs = [MaskedJob(conds=cond[None], rows=[rows], rng=np.random.default_rng(index), steps=passes, **decoding)
-                for index, cond in enumerate(_conds(batch, dim))]
-        return np.stack([maps[0] for maps in sample_token_maps(masked, residual, jobs)])  # type: ignore[index]
-    return generate
-
-
 GRAPH_VARIANT: Graphs | None = None      # set by main from --graphs
 
 
@@ -241,8 +198,8 @@ def torch_gpt(config: Any, dim: int, tokens: int) -> Callable[[torch.device], Ge
 
 
 def embedded_gpt_case() -> Case:
+    from t2m.bench.models import gpt_sizes
     from t2m.bundles import GPT_BUNDLE
-    from t2m.export.bench.models import gpt_sizes
 
     manifest = json.loads((GPT_BUNDLE / "manifest.json").read_text())
     g, dim = manifest["gpt"], manifest["text_encoder"]["dim"]
@@ -255,7 +212,7 @@ def embedded_gpt_case() -> Case:
 
 
 def embedded_hifigpt_case() -> Case:
-    from benchmarks.host_loop import default_loop
+    from t2m.bench.host_loop import default_loop
     from t2m.bundles import DEFAULT_BUNDLE
     from t2m.families.hifigpt.network import HiFiGPTConfig
 
@@ -339,7 +296,7 @@ def embedded_masked_case() -> Case:
 
 def release_gpt_case(workdir: Path, tiny: bool) -> Case:
     """T2M-GPT's release sizes (random weights), exported with the project's exporters."""
-    from t2m.export.bench.models import RELEASE_GPT, RELEASE_VQ
+    from t2m.bench.models import RELEASE_GPT, RELEASE_VQ
     from t2m.export.graphs.decoder import export_decoder
     from t2m.families.gpt.export_graphs import export_gpt_fixed_cache_step, export_gpt_step
     from t2m.families.gpt.network import GPTConfig, MotionGPT
@@ -364,18 +321,6 @@ def release_gpt_case(workdir: Path, tiny: bool) -> Case:
                          50, config.max_tokens, config.end_id),
                 torch_gpt(config, dim, 50), decoder_path, graphed=fixed_gpt(fixed_path, config, dim, 50),
                 graphed_label="fixed cache + CUDA graphs")
-
-
-def momask_release_decoding(codebook: int) -> dict[str, Any]:
-    """MoMask's release decoding (its HumanML3D evaluation settings: guidance 4 and 5, top-k 10% of each stage's
-    classes, the residual stage at temperature 1), as MaskedJob fields."""
-    from dataclasses import asdict
-
-    from t2m.families.masked.import_momask import release_decoding
-
-    fields = asdict(release_decoding("t2m", codebook))
-    return {name: fields[name] for name in ("guidance", "residual_guidance", "top_k", "residual_top_k",
-                                            "residual_temperature")}
 
 
 def release_momask_case(workdir: Path, tiny: bool) -> Case:

@@ -3,8 +3,8 @@
 Sequential requests (one at a time, after a warm-up) so the figure is the latency a single user sees, including
 text encoding, sampling, decoding, the format conversion and the HTTP round trip. Prints a markdown table.
 
-    python benchmarks/http_latency.py --url http://127.0.0.1:8000 --repeats 10
-    python benchmarks/http_latency.py --model t2m/bundles/default --repeats 10      # starts its own server
+    python -m benchmarks.http_latency --url http://127.0.0.1:8000 --repeats 10
+    python -m benchmarks.http_latency --model t2m/bundles/default --repeats 10      # starts its own server
 """
 from __future__ import annotations
 
@@ -19,9 +19,7 @@ from typing import Any, TypeVar
 import httpx
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.server_process import require_loopback, running_server
+from t2m.testing.server_process import require_loopback, running_server
 
 __all__ = ["add_target_arguments", "check_target", "format_table", "main", "measure_latency", "on_target",
            "write_json"]

@@ -10,9 +10,9 @@ The server's resident memory is sampled throughout (psutil if installed, else /p
 
 Only loopback URLs are accepted, and clients, seconds and requests are bounded: this is a benchmark, not a weapon.
 
-    python benchmarks/load_test.py --url http://127.0.0.1:8000 --server-pid 1234 --clients 4 --seconds 10 --overload
+    python -m benchmarks.load_test --url http://127.0.0.1:8000 --server-pid 1234 --clients 4 --seconds 10 --overload
     # starts its own server:
-    python benchmarks/load_test.py --model t2m/bundles/default --clients 4 --seconds 10 --overload
+    python -m benchmarks.load_test --model t2m/bundles/default --clients 4 --seconds 10 --overload
 """
 from __future__ import annotations
 
@@ -28,25 +28,14 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.server_process import require_loopback, running_server
+from t2m.bench.phases import SENTENCES, PhaseResult
+from t2m.testing.server_process import require_loopback, running_server
 
 __all__ = ["LoadReport", "MemoryTrace", "PhaseResult", "format_report", "main", "rss_bytes", "run_load", "run_phase"]
 
 MAX_CLIENTS = 512
 MAX_SECONDS = 600.0
 MAX_REQUESTS = 50_000
-SENTENCES = [
-    "a person walks forward",
-    "a person jumps up and down",
-    "a person waves with the right hand",
-    "a person turns around",
-    "a person runs in a circle",
-    "a person sits down",
-    "a person kicks with the left leg",
-    "a person raises both arms",
-]
 
 
 def rss_bytes(pid: int) -> int | None:
@@ -67,50 +56,6 @@ def rss_bytes(pid: int) -> int | None:
     except OSError:
         return None
     return None
-
-
-@dataclass
-class PhaseResult:
-    name: str
-    clients: int
-    seconds: float
-    latencies_ms: list[float] = field(default_factory=list)  # of 2xx answers
-    status_2xx: int = 0
-    status_4xx: int = 0  # other than 429
-    status_429: int = 0
-    status_5xx: int = 0
-    connection_errors: int = 0
-    error_samples: list[str] = field(default_factory=list)
-
-    @classmethod
-    def pooled(cls, name: str, clients: int, phases: list[PhaseResult]) -> PhaseResult:
-        """One result from several phases' answers (their seconds added): rounds of a benchmark, or its chunks."""
-        pooled = cls(name=name, clients=clients, seconds=sum(p.seconds for p in phases))
-        for phase in phases:
-            pooled.latencies_ms += phase.latencies_ms
-            pooled.status_2xx += phase.status_2xx
-            pooled.status_4xx += phase.status_4xx
-            pooled.status_429 += phase.status_429
-            pooled.status_5xx += phase.status_5xx
-            pooled.connection_errors += phase.connection_errors
-            pooled.error_samples += phase.error_samples
-        return pooled
-
-    @property
-    def requests(self) -> int:
-        return self.status_2xx + self.status_4xx + self.status_429 + self.status_5xx + self.connection_errors
-
-    def percentile(self, q: float) -> float | None:
-        return float(np.percentile(self.latencies_ms, q)) if self.latencies_ms else None
-
-    def summary(self) -> dict:
-        return {
-            "phase": self.name, "clients": self.clients, "seconds": round(self.seconds, 2),
-            "requests": self.requests, "ok_per_s": round(self.status_2xx / self.seconds, 3) if self.seconds else 0.0,
-            "p50_ms": self.percentile(50), "p95_ms": self.percentile(95), "p99_ms": self.percentile(99),
-            "2xx": self.status_2xx, "4xx": self.status_4xx, "429": self.status_429, "5xx": self.status_5xx,
-            "connection_errors": self.connection_errors, "error_samples": self.error_samples[:5],
-        }
 
 
 @dataclass

@@ -9,7 +9,7 @@ Two measurements, printed as markdown:
 Replicas are containers of an image (--image, host network) or `t2m serve` processes (no --image). Everything runs
 niced and on 127.0.0.1. Re-run it on an idle machine for throughput figures that are not depressed by other work:
 
-    python benchmarks/scale_out.py --image t2m-service:smoke --replicas 1,2,3 --seconds 30 --failover
+    python -m benchmarks.scale_out --image t2m-service:smoke --replicas 1,2,3 --seconds 30 --failover
 """
 from __future__ import annotations
 
@@ -25,12 +25,10 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.load_test import PhaseResult, run_phase
-from benchmarks.nginx_front import NginxFront, read_access_log, running_nginx
-from benchmarks.replicas import Replica, make_replicas
-from benchmarks.server_process import free_port
+from t2m.testing.nginx_front import NginxFront, read_access_log, running_nginx
+from t2m.testing.replicas import Replica, make_replicas
+from t2m.testing.server_process import free_port
 
 __all__ = ["FailoverReport", "failover", "main", "throughput"]
 

@@ -4,20 +4,17 @@ Starts `t2m serve` on loopback for each configuration, sends a few 10 s requests
 onnxruntime arenas have grown to their working size), then reads the server process's resident memory (VmRSS) and its
 peak (VmHWM) from /proc. Prints a markdown table. Linux only.
 
-    python benchmarks/service_memory.py --model t2m/bundles/default --model t2m/bundles/masked
+    python -m benchmarks.service_memory --model t2m/bundles/default --model t2m/bundles/masked
 """
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import httpx
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.server_process import running_server
+from t2m.testing.server_process import running_server
 
 __all__ = ["main", "measure", "process_memory_mb"]
 

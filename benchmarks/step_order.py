@@ -14,9 +14,9 @@ The table: the probe's p50/p90 alone and under load and their ratio (the goal: p
 long requests' answers/s alone and beside the probe (what they lose to it), and the 16-client answers/s and p99.
 Loopback only; bounded like load_test.py.
 
-    python benchmarks/step_order.py --model t2m/bundles/default --seconds 20 --rounds 2
+    python -m benchmarks.step_order --model t2m/bundles/default --seconds 20 --rounds 2
     # "before" = the code of an older commit (its own default order), e.g. the commit before issue 29's scheduling:
-    git worktree add /tmp/before 5164bad && python benchmarks/step_order.py --before-code /tmp/before
+    git worktree add /tmp/before 5164bad && python -m benchmarks.step_order --before-code /tmp/before
 """
 from __future__ import annotations
 
@@ -32,17 +32,14 @@ from pathlib import Path
 
 import httpx
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.continuous_batching import machine
-from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, SENTENCES, PhaseResult, post_and_record
-from benchmarks.server_process import require_loopback, running_server
+from benchmarks.load_test import MAX_CLIENTS, MAX_SECONDS, post_and_record
+from t2m.bench.machine import machine_facts as machine
+from t2m.bench.phases import KINDS, MODES, SENTENCES, PhaseResult, format_table
+from t2m.testing.server_process import require_loopback, running_server
 
-__all__ = ["MODES", "PHASES", "main", "run_phase"]
+__all__ = ["PHASES", "main", "run_phase"]
 
-MODES = {"before": "every-cohort", "after": "shortest-first"}    # label -> T2M_STEP_ORDER
 PHASES = ("short alone", "long alone", "mixed", "sixteen")
-KINDS = {"short": (2.0, 1), "long": (30.0, 3), "ten": (10.0, 1)}   # kind -> (motion seconds, sentences)
 MAX_ROUNDS = 20
 
 
@@ -102,42 +99,6 @@ def _warm_up(url: str) -> None:
     with httpx.Client(timeout=600.0) as client:
         for kind in KINDS:
             client.post(f"{url}/generate", json=_body(rng, kind)).raise_for_status()
-
-
-def _ms(value: float | None) -> str:
-    return "-" if value is None else f"{value:.0f}"
-
-
-def format_table(pooled: dict[tuple[str, str, str], PhaseResult], orders: dict[str, str] | None = None) -> str:
-    """One row per server (`orders`: label -> its step order, MODES by default): the probe alone and under load, the
-    long load alone and beside the probe, sixteen."""
-    def get(mode: str, phase: str, kind: str) -> PhaseResult | None:
-        return pooled.get((mode, phase, kind))
-
-    lines = ["| step order | short p50 / p90 alone ms | short p50 / p90 under load ms | p90 ratio | long answers/s "
-             "alone | long answers/s beside the probe | long p50 ms beside it | 16 clients answers/s | 16 clients "
-             "p50 / p99 ms | non-2xx |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for mode, order in (orders or MODES).items():
-        alone, loaded = get(mode, "short alone", "short"), get(mode, "mixed", "short")
-        long_alone, long_mixed = get(mode, "long alone", "long"), get(mode, "mixed", "long")
-        sixteen = get(mode, "sixteen", "ten")
-        ratio = "-"
-        if alone and loaded and alone.percentile(90) and loaded.percentile(90):
-            ratio = f"{loaded.percentile(90) / alone.percentile(90):.2f}"   # type: ignore[operator]
-        errors = sum(r.summary()[key] for (m, _, _), r in pooled.items() if m == mode
-                     for key in ("4xx", "429", "5xx", "connection_errors"))
-
-        def pair(result: PhaseResult | None, low: float, high: float) -> str:
-            return "-" if result is None else f"{_ms(result.percentile(low))} / {_ms(result.percentile(high))}"
-
-        def rate(result: PhaseResult | None) -> str:
-            return "-" if result is None else f"{result.summary()['ok_per_s']:.2f}"
-
-        long_p50 = _ms(long_mixed.percentile(50) if long_mixed else None)
-        lines.append(f"| {mode} ({order}) | {pair(alone, 50, 90)} | {pair(loaded, 50, 90)} | {ratio} | "
-                     f"{rate(long_alone)} | {rate(long_mixed)} | {long_p50} | {rate(sixteen)} | "
-                     f"{pair(sixteen, 50, 99)} | {errors} |")
-    return "\n".join(lines)
 
 
 def phase_figures(pooled: dict[tuple[str, str, str], PhaseResult]) -> list[dict]:
@@ -222,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"- before: the code in {args.before_code or 'this checkout'} serving {args.before_model or args.model}"
               f" ({orders['before']}{''.join(f', {k}={v}' for k, v in before_env.items())}); after: this checkout "
               f"serving {args.model}")
-    print(f"- command: python benchmarks/step_order.py {' '.join(argv if argv is not None else sys.argv[1:])}")
+    print(f"- command: python -m benchmarks.step_order {' '.join(argv if argv is not None else sys.argv[1:])}")
     print(f"- short: 2 s, one sentence, one every {args.probe_interval_ms:g} ms (open loop); long: "
           f"30 s as 3 x 10 s sentences, {args.long_clients} clients back to back; 16 clients: 10 s, one sentence")
     print()

@@ -5,9 +5,9 @@ Per streamed request: the time until the client has parsed the first frames mess
 (the last frame has come before it). Per whole request: the time until its json body is read. Sequential requests
 after a warm-up, so the figures are what a single user sees. Prints a markdown table.
 
-    python benchmarks/stream_latency.py --model t2m/bundles/default --repeats 20     # starts its own server
-    python benchmarks/stream_latency.py --model t2m/bundles/default --intra-op-threads 1     # on a shared machine
-    python benchmarks/stream_latency.py --url http://127.0.0.1:8000 --repeats 20
+    python -m benchmarks.stream_latency --model t2m/bundles/default --repeats 20     # starts its own server
+    python -m benchmarks.stream_latency --model t2m/bundles/default --intra-op-threads 1     # on a shared machine
+    python -m benchmarks.stream_latency --url http://127.0.0.1:8000 --repeats 20
 """
 from __future__ import annotations
 
@@ -15,13 +15,10 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 import httpx
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: make `benchmarks.*` importable from the repo root
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.http_latency import (
     MAX_REPEATS,
     add_target_arguments,
@@ -30,7 +27,7 @@ from benchmarks.http_latency import (
     on_target,
     write_json,
 )
-from benchmarks.server_process import require_loopback
+from t2m.testing.server_process import require_loopback
 
 __all__ = ["format_table", "main", "measure_stream"]
 

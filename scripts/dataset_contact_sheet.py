@@ -7,14 +7,11 @@ split and first caption, drawn with scripts/render_motions.py's contact sheet, t
 from __future__ import annotations
 
 import argparse
-import sys
 import textwrap
 from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: make the repo's packages importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from scripts.render_motions import SheetRow, contact_sheet
 from t2m.model.data.motion_data import MotionDirectory
 

@@ -16,8 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: make the repo's packages importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from scripts.render_motions import SheetRow, contact_sheet, load_engine
 from t2m.model.evaluation.probes import probe_by_name
 

@@ -21,8 +21,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: make the repo's packages importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from t2m.model.evaluation.probes import STREAM, initial_facing, path_length, probe_by_name
 from t2m.motion.skeleton import SMPL22
 

@@ -13,9 +13,6 @@ import types
 import typing
 from pathlib import Path
 
-if __package__ in (None, ""):  # run as a script: make the repo's packages importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 import annotated_types
 from pydantic import AliasChoices, SecretStr
 from pydantic.fields import FieldInfo

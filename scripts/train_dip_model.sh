@@ -40,7 +40,7 @@ t2m export --family diffusion --diffusion-run "$RUNS/dip" --guidance 7.5 --int8 
   --name t2m-bandai-dip-minilm --version 0.2.0 -o "$RUNS/dip_bundle"
 
 # 5. The probes (the engine's loop, any family) beside the other embedded models.
-python benchmarks/probes.py --bundle "$RUNS/dip_bundle" --seeds 5 --json-out "$RUNS/probes_dip.json"
+t2m eval probes --bundle "$RUNS/dip_bundle" --seeds 5 --json-out "$RUNS/probes_dip.json"
 
 # 6. Table 1 and the stream table (t2m/families/diffusion/evaluation.py): the guidance chosen on the val split first,
 #    then the test split at the chosen scale.

@@ -45,5 +45,5 @@ t2m eval --data "$DATA" --evaluator "$RUNS/evaluator" --vq "$RUNS/vq" --gpt "$RU
 t2m eval --data "$DATA" --split val --evaluator "$RUNS/evaluator" --vq "$RUNS/vq" --gpt "$RUNS/gpt" \
   --guidance 1 1.5 2 3 --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --text-cache "$RUNS/text_minilm.npz" \
   --threads 2 --out "$RUNS/eval_val_guidance.md"
-python benchmarks/probes.py --bundle t2m/bundles/gpt --seeds 5 --json-out "$RUNS/probes.json"
+t2m eval probes --bundle t2m/bundles/gpt --seeds 5 --json-out "$RUNS/probes.json"
 python scripts/render_motions.py --bundle t2m/bundles/gpt --out tmp/images-gpt --seed 0  # README: the default's

@@ -81,7 +81,7 @@ t2m eval --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --vq "$RUNS/
 t2m eval --bundle t2m/bundles/default --data "$DATA" --evaluator "${EVALUATOR:-$RUNS/evaluator}" --guidance 3 \
   --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_bundle_default.md"
 # The kinematic probes on the bundle (free wordings x 5 seeds), beside the GPT model's; and its request speed.
-python benchmarks/probes.py --bundle t2m/bundles/default --seeds 5 --json-out "$RUNS/probes_hifigpt2.json"
+t2m eval probes --bundle t2m/bundles/default --seeds 5 --json-out "$RUNS/probes_hifigpt2.json"
 t2m bench --bundle default --bundle gpt --bundle masked --threads 1 --repeats 10    # then --threads 2
 python scripts/render_motions.py --bundle t2m/bundles/default --out docs/images --seed 0   # the README pictures
 
@@ -101,7 +101,7 @@ python scripts/render_motions.py --bundle t2m/bundles/default --out docs/images 
 # What this does and does not decide: 400 steps are too few for the depth to matter (the decoder, not the
 # quantiser, limits every run: 68-92 mm against the default VQ's 42 mm after 15000 steps), and x8 starts ~20 mm
 # behind x4. x4 with R 4 costs 2.4x per VQ step and doubles the GPT's time steps (50 instead of 25, 5 network calls
-# each: 250 calls per 10 s against 175 for x8 R 6, benchmarks/hifigpt_speed.py), so the run follows the paper (x8,
+# each: 250 calls per 10 s against 175 for x8 R 6, t2m/families/hifigpt/bench.py), so the run follows the paper (x8,
 # R 6, shared codebook: the cheapest at equal R). STILL TO MEASURE in the real run (item 5): whether x8 R 6 reaches <= 15 mm
 # root-relative after 15000 steps; if it stalls above the 1-layer VQ's 42 mm, rerun step 1 with --down-t 2
 # --residual-layers 4 (and --max-tokens 50 in step 2, ~+40 min) before training the GPT.

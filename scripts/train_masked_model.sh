@@ -76,7 +76,7 @@ t2m export --family masked --vq "$RUNS/joint_vq" --masked "$RUNS/masked" --resid
   --length "$RUNS/length" --steps 10 --guidance 4 --residual-guidance 5 --top-k 26 --residual-top-k 26 --int8 all \
   --name t2m-bandai-masked-minilm --version 0.2.0 --model-card t2m/families/masked/model_card.md -o t2m/bundles/masked
 t2m index-captions t2m/bundles/masked --data "$DATA"
-python benchmarks/probes.py --bundle t2m/bundles/masked --seeds 5 --json-out "$RUNS/probes_masked.json"
+t2m eval probes --bundle t2m/bundles/masked --seeds 5 --json-out "$RUNS/probes_masked.json"
 
 # Throughput, measured on 2026-11-25 with short runs (60-80 steps, log.csv samples_per_s of steps 20-80, which
 # count data + forward + backward + update) on the project machine (2 cores, torch 2.13.0+cpu), commands as above

@@ -59,8 +59,8 @@ for bundle in t2m/bundles/default "$RUNS/bundle"; do
   name="$(basename "$bundle")"
   t2m eval --bundle "$bundle" --data data/bandai --evaluator "${EVALUATOR:-runs/evaluator}" --guidance 3 \
     --repeats 3 --mm-texts 30 --mm-repeats 10 --streams 100 --threads 2 --out "$RUNS/eval_$name.md"
-  python benchmarks/probes.py --bundle "$bundle" --seeds 5 --json-out "$RUNS/probes_$name.json"
-  python benchmarks/probes.py --bundle "$bundle" --probes jump,invert,get_up --seeds 5 --no-stream \
+  t2m eval probes --bundle "$bundle" --seeds 5 --json-out "$RUNS/probes_$name.json"
+  t2m eval probes --bundle "$bundle" --probes jump,invert,get_up --seeds 5 --no-stream \
     --json-out "$RUNS/action_probes_$name.json"     # the CMU actions (0/90 for every embedded model before)
 done
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.probes import calibrate_on_cmu, main
 from t2m.model.evaluation.action_probes import ACTION_PROBES, probe_get_up, probe_invert, probe_jump
 from t2m.motion.bvh import read_bvh
 from t2m.motion.retarget import bvh_to_smpl22
+from t2m.quality.probes import calibrate_on_cmu, main
 from tests.shared_data import require_shared
 
 OTHERS = ["dataset-1_walk_normal_001", "dataset-1_run_happy_001", "dataset-1_bow_normal_001",

@@ -1,8 +1,9 @@
 """Docs that cannot drift: every repository path and `t2m.` module the documentation names exists.
 
 Checked: every Markdown page of the repository (README.md, CONTRIBUTING.md, docs/, benchmarks/, deploy/, the
-bundles' model cards, ...) and every string of the embedded bundles' manifest.json files. CHANGELOG.md is not
-checked: it is history, and its entries name the paths as they were when each was written.
+bundles' model cards, ...) and every string of the embedded bundles' manifest.json files. CHANGELOG.md and
+docs/speed-history.md are not checked: they are history, and their entries name the paths and commands as they were
+when each was written.
 
 What counts as a path (the rule, kept small so that it neither misses a moved file nor cries wolf):
 - a Markdown link or image target `[...](target)` that is not a URL: relative to the page, with its `#anchor`
@@ -43,7 +44,7 @@ REPO = Path(__file__).resolve().parents[1]
 ROOT_FOLDERS = ("t2m", "tests", "docs", "scripts", "benchmarks", "deploy", "tools", ".ci")
 MARKDOWN_ROOTS = ("docs", "benchmarks", "deploy", "t2m", "tests", "scripts", "tools")
 SKIPPED_FOLDERS = {"node_modules", "__pycache__"}  # installed third-party files (tools/gltf-validator), caches
-NOT_CHECKED = {"CHANGELOG.md"}                     # history: paths as they were
+NOT_CHECKED = {"CHANGELOG.md", "speed-history.md"}  # history: paths (and commands) as they were
 SUFFIXES = ("py", "md", "sh", "json", "toml", "yml", "yaml", "onnx", "npz", "npy", "log", "png", "gif", "txt", "conf")
 
 LINK = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
@@ -76,10 +77,10 @@ def folder_names(repo: Path = REPO) -> frozenset[str]:
 
 
 def documentation_files(repo: Path = REPO) -> list[Path]:
-    """The Markdown pages checked: the top level's and every one under the source folders, CHANGELOG.md aside."""
+    """The Markdown pages checked: the top level's and every one under the source folders, the history aside."""
     pages = [p for p in sorted(repo.glob("*.md")) if p.name not in NOT_CHECKED]
     for root in MARKDOWN_ROOTS:
-        pages += sorted(p for p in (repo / root).rglob("*.md") if not any(
+        pages += sorted(p for p in (repo / root).rglob("*.md") if p.name not in NOT_CHECKED and not any(
             part.startswith(".") or part in SKIPPED_FOLDERS for part in p.relative_to(repo).parts))
     return pages
 

@@ -1,4 +1,4 @@
-"""benchmarks/fatbin_keep_arch.py: only the kept architecture's machine code survives, layout and length unchanged,
+"""tools/gpu/fatbin_keep_arch.py: only the kept architecture's machine code survives, layout and length unchanged,
 and a fatbin whose entries do not tile it exactly is refused before anything is written."""
 from __future__ import annotations
 

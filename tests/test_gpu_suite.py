@@ -96,7 +96,7 @@ def _git(repo: Path, *args: str) -> str:
 
 
 def test_the_wheel_travels_in_parts_and_comes_together_byte_for_byte(tmp_path):
-    """benchmarks/gpu_transport.sh on a fake wheel in a scratch repository: prepare splits the CUDA provider into
+    """tools/gpu/transport.sh on a fake wheel in a scratch repository: prepare splits the CUDA provider into
     parts of PART_MB, keep + unpack (what the device calls run) rebuild every file of the wheel exactly; slim takes
     the bundles out of git's index only (the files stay) and restore puts them back."""
     import os
@@ -118,7 +118,7 @@ def test_the_wheel_travels_in_parts_and_comes_together_byte_for_byte(tmp_path):
     with zipfile.ZipFile(wheel, "w") as archive:
         for name, data in files.items():
             archive.writestr(name, data)
-    script = ["bash", "benchmarks/gpu_transport.sh"]
+    script = ["bash", "tools/gpu/transport.sh"]
     env = {"PATH": "/usr/bin:/bin", "PART_MB": "1", "HOME": str(tmp_path), "KEEP_SM": "all"}   # no fatbin here
 
     def run(*args: str) -> subprocess.CompletedProcess:
@@ -156,7 +156,7 @@ def test_gpu_profile_sums_onnxruntimes_profile_per_operator_on_cpu(tmp_path, cap
 
 
 def test_host_loop_prints_one_row_per_loop_batch_and_draw_group():
-    """benchmarks/host_loop.py (the decoding loops over instant steps; gpu_suite's "host loop alone" row): one table
+    """t2m/bench/host_loop.py (the decoding loops over instant steps; gpu_suite's "host loop alone" row): one table
     row per loop, batch and DRAW_GROUP size compared. Figures are printed, never asserted."""
     result = subprocess.run(
         [sys.executable, str(REPO / "benchmarks" / "host_loop.py"), "--batches", "1,3", "--repeats", "1",

@@ -1,4 +1,4 @@
-"""The kinematic probes (t2m.model.evaluation.probes) and their runner (benchmarks/probes.py).
+"""The kinematic probes (t2m.model.evaluation.probes) and their runner (t2m/quality/probes.py).
 
 (a) On real motion capture: each probe passes on a Bandai-Namco clip of its action (converted to SMPL-22 with
     motion.retarget, cut to the runner's 3 s) and fails on a clearly different one; one probe also on HumanML3D's
@@ -231,7 +231,7 @@ def random_engine(random_bundle):
 
 
 def test_runner_report(random_engine):
-    from benchmarks.probes import format_report, run_probes
+    from t2m.quality.probes import format_report, run_probes
 
     report = run_probes(random_engine, seeds=[0, 1], guidance=2.0, probes=[probes.probe_by_name("run_vs_walk"),
                                                                            probes.probe_by_name("bow")],
@@ -250,7 +250,7 @@ def test_runner_report(random_engine):
 def test_runner_cli_writes_json(random_bundle, tmp_path, capsys):
     import json
 
-    from benchmarks.probes import main
+    from t2m.quality.probes import main
 
     out = tmp_path / "probes.json"
     assert main(["--bundle", str(random_bundle), "--seeds", "2", "--probes", "kick,turn_left", "--no-stream",
@@ -262,7 +262,7 @@ def test_runner_cli_writes_json(random_bundle, tmp_path, capsys):
 
 
 def test_runner_cli_refuses_a_bad_bundle_or_probe(random_bundle, tmp_path, capsys):
-    from benchmarks.probes import main
+    from t2m.quality.probes import main
 
     assert main(["--bundle", str(tmp_path / "absent")]) == 2
     assert "absent" in capsys.readouterr().err
@@ -291,7 +291,7 @@ KNOWN_FAILURES = {
 def default_report():
     if not (DEFAULT_MODEL / "manifest.json").is_file():
         pytest.skip(f"the default model is not committed yet ({DEFAULT_MODEL / 'manifest.json'} is absent)")
-    from benchmarks.probes import run_probes
+    from t2m.quality.probes import run_probes
     from t2m.runtime.engine import OnnxEngine
 
     engine = OnnxEngine.load(DEFAULT_MODEL)

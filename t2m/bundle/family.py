@@ -87,6 +87,9 @@ class ModelFamily:
     optional_fields: ClassVar[Mapping[str, FieldRule]] = {}
     capabilities: ClassVar[Capabilities] = Capabilities()
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {}   # `t2m train KIND` -> (module, help)
+    # `t2m bench SUBJECT` / `t2m eval SUBJECT` of its own -> (module with main(argv) -> int, help)
+    bench_subjects: ClassVar[Mapping[str, tuple[str, str]]] = {}
+    eval_subjects: ClassVar[Mapping[str, tuple[str, str]]] = {}
     # checkpoint kinds of its PyTorch modules built from a table: kind -> (module, model class, config class)
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {}
     eval_run_option: ClassVar[str | None] = None                  # `t2m eval --NAME RUN` picks this family

@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import sys
 from collections.abc import Sequence
 from importlib.metadata import entry_points
 
 from t2m import __version__
+from t2m.cli.subjects import run_subject, subject_of
 
 # Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
 # `parser.set_defaults(func=...)` receives the parsed namespace and returns an exit code. Only the module of the
@@ -71,21 +73,28 @@ def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(_selected_command(argv) or "")
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    subject = subject_of(argv)
+    if subject is not None:
+        command = subject[0]
+        run = functools.partial(run_subject, *subject, argv[2:])
+    else:
+        parser = build_parser(_selected_command(argv) or "")
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
+        command = args.command
+        run = functools.partial(args.func, args)
     try:
-        return int(args.func(args) or 0)
+        return int(run() or 0)
     except CliError as error:
-        print(f"t2m {args.command}: error: {error}", file=sys.stderr)
+        print(f"t2m {command}: error: {error}", file=sys.stderr)
         return 2
     except FileNotFoundError as error:
-        print(f"t2m {args.command}: error: file not found: {error.filename or error}", file=sys.stderr)
+        print(f"t2m {command}: error: file not found: {error.filename or error}", file=sys.stderr)
         return 2
     except ValueError as error:  # motion-core and bundle checks raise ValueError with a user-facing message
-        print(f"t2m {args.command}: error: {error}", file=sys.stderr)
+        print(f"t2m {command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.families.gpt.loop import SamplingJob
+from t2m.decoding.lockstep import SamplingJob
 from t2m.model.evaluation.evaluate import Models
 
 __all__ = ["BundleDecoder", "BundleLockstepFamily", "load_bundle_models", "lockstep_bundle_models"]

@@ -10,7 +10,7 @@ request also carries its map with the kept codes around it (service/edit_context
 sides as context; the other families sample it alone. The route runs the requests through the model's batcher as
 any generation, then decodes all the codes once (OnnxEngine.compose). A failure is an EditError with the `loc` of
 the field (pydantic's shape: a 422). `edit_in_process` does the same with an engine directly (`t2m edit`,
-benchmarks/edit_latency.py).
+t2m/bench/edit_latency.py).
 """
 from __future__ import annotations
 

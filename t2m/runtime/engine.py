@@ -57,7 +57,7 @@ class OnnxEngine:
         gets its first final frames at once, then the next when at least this many more codes' frames (and as many
         as sent before) are final (engine/streaming.py; one decode each). `exact_durations` False answers the
         decoded frames as they are (round(duration * fps / f) * f a segment): what the fixed-seed recordings and
-        benchmarks/join_smoothness.py compare the fitted frames with."""
+        t2m/quality/joins.py compare the fitted frames with."""
         if unknown_text not in ("warn", "reject"):
             raise ValueError(f"unknown_text must be 'warn' or 'reject', got {unknown_text!r}")
         manifest = bundle.manifest

@@ -10,7 +10,7 @@ positions linearly interpolated, along a monotone time map that gives segment k 
   spans its first to its last decoded frame (j * (n - 1) / (F - 1)), so the motion ends on its last decoded frame;
 - the rate n / F changes smoothly across a join instead of jumping: each segment's map is a cubic Hermite whose slope
   at a join is the mean of the two segments' rates (at most three times either, which keeps it monotone); the
-  motion's first and last ends keep the segment's own rate. benchmarks/join_smoothness.py measured this against
+  motion's first and last ends keep the segment's own rate. t2m/quality/joins.py measured this against
   resampling each segment alone between its first and last decoded frames (docs/measurements/): the pelvis-velocity
   change at the joins stays that of the decoded frames (paired median -0.04 to +0.01 mm/frame on the three embedded
   models) where the per-segment fit added 0.13 to 0.46 mm/frame (the rate stepping n / F -> 1 -> n' / F' at a join);

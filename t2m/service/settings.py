@@ -58,7 +58,7 @@ class Settings(BaseSettings):
                                                    "choice: one per core).")
     # on by default: the decoding loops allocate many small objects per step, and with the loaded libraries'
     # objects in the collector's view its full collections took ~30% of the default model's host loop at batch
-    # 1,024 (benchmarks/host_loop.py --gc as-is,frozen; docs/gpu.md)
+    # 1,024 (t2m/bench/host_loop.py --gc as-is,frozen; docs/gpu.md)
     gc_freeze: bool = Field(True, description="After the models load, move every object alive then out of the "
                                               "garbage collector's generations (gc.freeze), so its collections "
                                               "walk only what requests allocate.")

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from chromium_cdp import HeadlessChromium, find_chromium
 
-from benchmarks.server_process import running_server
+from t2m.testing.server_process import running_server
 
 pytestmark = pytest.mark.clients
 

@@ -18,10 +18,10 @@ from pathlib import Path
 import httpx
 import pytest
 
-from benchmarks.nginx_front import NGINX_CONF, NginxFront, read_access_log, render_loopback_config, running_nginx
-from benchmarks.replicas import Replica, make_replicas
-from benchmarks.server_process import free_port
 from t2m.service.settings import Settings
+from t2m.testing.nginx_front import NGINX_CONF, NginxFront, read_access_log, render_loopback_config, running_nginx
+from t2m.testing.replicas import Replica, make_replicas
+from t2m.testing.server_process import free_port
 
 # two sentences of 4 s: long enough to be caught in flight on a busy machine, short enough for CI
 BODY = {"segments": [{"text": "a person walks forward", "duration": 4.0},

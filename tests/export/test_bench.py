@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from t2m.export.bench.models import BenchCase, run_bench
+from t2m.bench.models import BenchCase, run_bench
 from t2m.families.gpt.network import GPTConfig
 from t2m.model.networks.vqvae import VQConfig
 

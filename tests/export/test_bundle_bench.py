@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from t2m.bench.bundles import CASES, run_bundle_bench
 from t2m.cli.main import main as t2m
-from t2m.export.bench.bundles import CASES, run_bundle_bench
 from t2m.families.gpt.random_bundle import build_random_bundle
 from t2m.families.hifigpt.random_bundle import build_random_hifigpt_bundle
 from t2m.families.masked.random_bundle import build_random_masked_bundle

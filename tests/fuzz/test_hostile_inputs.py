@@ -19,10 +19,10 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from benchmarks.server_process import running_server
 from t2m.bundles import DEFAULT_BUNDLE
 from t2m.service.request_deadlines import deadline_protocol
 from t2m.service.settings import Settings
+from t2m.testing.server_process import running_server
 from tests.fuzz.hostile_check import run_corpus
 from tests.fuzz.hostile_corpus import API_KEY, BODY_TIMEOUT_S, CASES, HEADER_TIMEOUT_S, OK, SERVER_ENV, SURROGATES
 from tests.service.conftest import LiveServer

@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, settings
 from schemathesis import GenerationMode
 from schemathesis.checks import positive_data_acceptance
 
-from benchmarks.server_process import running_server
+from t2m.testing.server_process import running_server
 
 pytestmark = pytest.mark.slow
 

@@ -1,4 +1,4 @@
-"""benchmarks/compute_floor.py counts a graph's multiply-adds from onnxruntime's profile: checked on graphs whose
+"""t2m/bench/compute_floor.py counts a graph's multiply-adds from onnxruntime's profile: checked on graphs whose
 count is known by hand, float32 and per-row int8, and its report runs on the embedded masked bundle."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper
 
-from benchmarks.compute_floor import graph_macs, main, request_calls
+from t2m.bench.compute_floor import graph_macs, main, request_calls
 from t2m.export.writing.quantize import quantize_graph
 
 MASKED = "t2m/bundles/masked"

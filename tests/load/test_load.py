@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks.load_test import format_report, run_load
-from benchmarks.server_process import running_server
+from t2m.testing.server_process import running_server
 
 pytestmark = pytest.mark.slow
 

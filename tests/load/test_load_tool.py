@@ -8,9 +8,9 @@ import pytest
 from benchmarks.http_latency import main as latency_main
 from benchmarks.load_test import main as load_main
 from benchmarks.load_test import run_phase
-from benchmarks.server_process import require_loopback
 from benchmarks.step_order import main as step_order_main
 from benchmarks.stream_latency import main as stream_main
+from t2m.testing.server_process import require_loopback
 
 
 @pytest.mark.parametrize("url", ["http://127.0.0.1:8000", "http://localhost:1", "http://[::1]:8000/"])

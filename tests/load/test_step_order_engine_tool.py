@@ -1,4 +1,4 @@
-"""benchmarks/step_order_engine.py: a phase runs on the service's batcher in this process and records every answer;
+"""t2m/bench/scheduler.py: a phase runs on the service's batcher in this process and records every answer;
 a --before-code that is no checkout of this repository is refused in one line before anything runs."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 
 from benchmarks.load_test import SENTENCES
 from benchmarks.step_order import KINDS
-from benchmarks.step_order_engine import main, run_phase_here
+from t2m.bench.scheduler import main, run_phase_here
 
 
 def test_a_mixed_phase_records_the_probe_and_the_long_requests():

@@ -38,9 +38,9 @@ def test_it_knows_the_cmu_actions_the_default_warns_about(both_engine):
 
 
 def _pass_rate(engine, name: str) -> float:
-    from benchmarks.probes import run_probes
     from t2m.model.evaluation.action_probes import ACTION_PROBES
     from t2m.model.evaluation.probes import PROBES
+    from t2m.quality.probes import run_probes
 
     [spec] = [spec for spec in (*PROBES, *ACTION_PROBES) if spec.name == name]
     report = run_probes(engine, SEEDS, engine.limits.guidance(), probes=[spec], stream=False, progress=False)

@@ -158,7 +158,7 @@ def test_masked_codes_round_trip_through_a_handle(masked_bundle):
     engine = OnnxEngine.load(masked_bundle, intra_op_threads=1)
     request = request_of([("a person walks forward", 2.0), ("a person kicks", 1.6)])
     motion = engine.generate(request)
-    assert engine.limits.inpaints   # its edits: tests/service/test_edit_masked.py
+    assert engine.limits.inpaints   # its edits: tests/families/masked/test_edit_masked.py
     handle = read_handle(make_handle(engine.limits, request, motion.codes), engine.limits)
     assert [s.codes.shape[1:] for s in handle.segments] == [engine.limits.codes.shape] * 2
     again = engine.compose(handle.request(), [s.codes for s in handle.segments])

@@ -12,8 +12,11 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from t2m.cli.subjects import subjects_help
+
     parser = subparsers.add_parser("bench", help="generation speed: onnxruntime + KV cache vs PyTorch eager",
-                                   description=(__doc__ or "").strip().splitlines()[0])
+                                   description=(__doc__ or "").strip().splitlines()[0],
+                                   epilog=subjects_help("bench"), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true",
                         help="one repeat, and only 10 tokens at the T2M-GPT release size "
                              "(under ~40 s once the graphs are cached)")
@@ -37,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError("--threads must be >= 1")
     if args.bundle:
         return run_bundles(args)
-    from t2m.export.bench.models import default_cache_dir, run_bench
+    from t2m.bench.models import default_cache_dir, run_bench
 
     cache_dir = None if args.no_cache else (args.cache_dir or default_cache_dir())
     run_bench(quick=args.quick, threads=args.threads, include_release=not args.no_release, cache_dir=cache_dir)
@@ -45,10 +48,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_bundles(args: argparse.Namespace) -> int:
+    from t2m.bench.bundles import run_bundle_bench
     from t2m.bundle import BundleError
     from t2m.bundles import resolve_bundle
     from t2m.cli.main import CliError
-    from t2m.export.bench.bundles import run_bundle_bench
 
     if args.repeats < 1:
         raise CliError("--repeats must be >= 1")

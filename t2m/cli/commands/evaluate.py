@@ -15,9 +15,11 @@ if TYPE_CHECKING:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from t2m.bundle import iter_families
+    from t2m.cli.subjects import subjects_help
 
     parser = subparsers.add_parser(
-        "eval", help="evaluate a VQ-VAE + GPT (or masked family) with a trained evaluator (R-precision, FID, ...)",
+        "eval", epilog=subjects_help("eval"), formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="evaluate a VQ-VAE + GPT (or masked family) with a trained evaluator (R-precision, FID, ...)",
         description="Reports on a split, laid out like the papers' Table 1: Real motion, VQ reconstruction and "
                     "generation at each guidance scale, mean ± 95% interval over repeats; plus T2LM's sliding- and "
                     "transition-scope FID on streams of sentences. Writes markdown (--out) and JSON (raw numbers). "

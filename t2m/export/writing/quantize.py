@@ -99,7 +99,7 @@ def quantize_weights_nbits(src: str | Path, dst: str | Path, bits: int, block: i
 def quantize_graph_int4(src: str | Path, dst: str | Path) -> Path:
     """int4 weights with int8 compute (MatMulNBits, block 128, accuracy level 4): about half of int8's weight bytes
     (126 against 230 MB at T2M-GPT's release size), which is what a bandwidth-bound step needs
-    (benchmarks/int8_release_speed.py).
+    (t2m/bench/quantized_release.py).
 
     No 7-bit rule is needed: a 4-bit weight times an 8-bit activation cannot saturate the int16 pair sums of CPUs
     without VNNI (at most 2 x 255 x 8 = 4080 < 32767)."""

@@ -1,9 +1,9 @@
 """Speed of diffusion-family bundles (MDM, DiP) beside the authors' published GPU figures, on several thread counts,
-float32 and with denoiser.onnx quantised to int8 (benchmarks/released_models_speed.py prints it for the releases).
+float32 and with denoiser.onnx quantised to int8 (t2m/bench/released_models.py prints it for the releases).
 
 Per bundle and thread count: ms per denoiser call (one batch of the guidance pair: conditional + null row; MDM at
 its longest, 196 frames; DiP at its 20 + 40 frames), then whole requests through the engine's own stages
-(t2m.export.bench.bundles.bench_engine): a DiP call (2 s of motion, 10 steps) and a DiP 10 s sentence (5 calls), an
+(t2m.bench.bundles.bench_engine): a DiP call (2 s of motion, 10 steps) and a DiP 10 s sentence (5 calls), an
 MDM motion of 9.8 s (196 frames, its longest; a 1000-step model is estimated as 1000 calls, not run). int8:
 onnxruntime's dynamic quantisation of denoiser.onnx (t2m.export.writing.quantize.quantize_graph) swapped into the
 engine, its parity against float32: max |x0 diff| on the call above and max |diff| of a whole seeded run (the same
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from t2m.export.bench.bundles import bench_engine
-from t2m.export.bench.machine import describe_machine
+from t2m.bench.bundles import bench_engine
+from t2m.bench.machine import describe_machine
 from t2m.runtime.engine import OnnxEngine
 
 __all__ = ["ANCHORS", "codes_of", "denoiser_feed", "run_diffusion_speed"]

@@ -98,6 +98,8 @@ class DiffusionFamily(ModelFamily):
         "dip": ("t2m.families.diffusion.train_dip", "train a small DiP (MiniLM token states) on a dataset")}
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {
         "dip": ("t2m.families.diffusion.network", "AveragedMDM", "DiffusionConfig")}
+    eval_subjects: ClassVar[Mapping[str, tuple[str, str]]] = {"diffusion-joins": (
+        "t2m.families.diffusion.join_quality", "MDM's joins with and without its in-between pass")}
 
     evaluates_bundle = True   # `t2m eval --bundle`: frames of exact lengths, streams as served
     bundle_evaluation = "t2m.families.diffusion.evaluation:diffusion_bundle_models"

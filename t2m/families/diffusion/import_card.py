@@ -32,7 +32,8 @@ PUBLISHED = {
     "DiP": "DiP: 11 ms per call of 40 frames, 3,500 frames/s (RTX 3090); HumanML3D R@1 0.458, FID 0.228, measured "
            "with ground-truth prefixes",
 }
-# Measured by tests/diffusion/test_diffusion_text.py (test_float16_vs_float32_at_the_released_size, slow suite):
+# Measured by tests/families/diffusion/test_diffusion_text.py (test_float16_vs_float32_at_the_released_size, slow
+# suite):
 # OpenAI's ViT-B/32 text tower at its size with random weights, MDM's float16 arithmetic emulated on the CPU
 # (t2m.families.diffusion.text_encoders.clip_encode_text_fp16) vs float32; the GPU's half kernels round otherwise.
 CLIP_FP16 = ("MDM computes CLIP in float16 (convert_weights); the service in float32. On a ViT-B/32-sized tower with "

@@ -14,10 +14,11 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from t2m.families.diffusion.distilbert_release import write_distilbert_folder
-from t2m.families.gpt.network import sinusoid_table
+from t2m.model.networks.positions import sinusoid_table
 from t2m.testing.clip_release import openai_clip_state, save_torchscript_archive
 
 
@@ -131,3 +132,13 @@ def make_release(root: Path, name: str, sizes: ReleaseSizes = SMALL_SIZES, **arg
     ema = release_state(decoder, text_dim, sizes, seed=2) if args.get("use_ema") else None
     write_release(root, args, state, ema)
     return root, (ema if ema is not None else state)
+
+
+def write_statistics(folder: Path, dim: int = 263, seed: int = 0) -> Path:
+    """HumanML3D's generation statistics as its folder holds them (Mean.npy, Std.npy), random: what `--humanml3d DIR`
+    reads. For a benchmark, where the values do not matter; a test that checks numbers uses the real sample's."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    np.save(folder / "Mean.npy", rng.normal(size=dim).astype(np.float32))
+    np.save(folder / "Std.npy", rng.uniform(0.1, 1.0, size=dim).astype(np.float32))
+    return folder

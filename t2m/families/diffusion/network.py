@@ -36,8 +36,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from t2m.families.gpt.network import sinusoid_table
 from t2m.model.networks.config import ConfigDict
+from t2m.model.networks.positions import sinusoid_table
 from t2m.model.networks.token_transformer import InputProcess, attention_scale, index_range
 
 __all__ = ["MDM", "AveragedMDM", "DiffusionConfig", "released_weights"]

@@ -9,7 +9,7 @@
   attention weights and ``text_projection`` in half, LayerNorms computed in float32 and cast back, activations in
   half) and casts the result to float32. :class:`MdmClipEncoder` gives the feature in float32 arithmetic (what the
   service's graph computes); :func:`mdm_clip_features` with ``precision="float16"`` emulates MDM's half arithmetic
-  with the same casts, to measure the difference (tests/diffusion/test_diffusion_text.py).
+  with the same casts, to measure the difference (tests/families/diffusion/test_diffusion_text.py).
 - **DiP's DistilBERT token states** (``text_encoder_type='bert'``): :class:`TokenStateEncoder` over
   :mod:`t2m.families.diffusion.distilbert`: every token's last-layer state [B, L, 768] and the padding mask, no pooling,
   no truncation in DiP's code (512 positions bound it here).

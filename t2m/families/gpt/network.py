@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from t2m.model.networks.config import ConfigDict
+from t2m.model.networks.positions import sinusoid_table
 
 
 @dataclass
@@ -79,16 +80,6 @@ class GPTConfig(ConfigDict):
     def pad_id(self) -> int:
         return self.codebook_size + 1
 
-
-
-def sinusoid_table(length: int, dim: int) -> torch.Tensor:
-    """Fixed sin/cos position table [length, 1, dim] (sin on even channels, cos on odd ones)."""
-    position = torch.arange(length, dtype=torch.float32).unsqueeze(1)
-    frequency = torch.exp(torch.arange(0, dim, 2, dtype=torch.float32) * (-math.log(10000.0) / dim))
-    table = torch.zeros(length, dim)
-    table[:, 0::2] = torch.sin(position * frequency)
-    table[:, 1::2] = torch.cos(position * frequency)[:, : dim // 2]
-    return table.unsqueeze(1)
 
 
 class SinusoidalPositions(nn.Module):

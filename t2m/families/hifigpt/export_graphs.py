@@ -18,7 +18,7 @@ decoder.onnx        codes int64 [B, T, R] (-1 = depth unused)  ->  features floa
 
 One call per depth (not the whole depth loop in one graph): the per-call overhead measured at the paper's size is a
 few per cent of a step, and the host keeps the one sampling recipe (t2m.families.hifigpt.loop, shared with PyTorch);
-benchmarks/hifigpt_speed.py has the figures. B and the cache lengths are dynamic.
+t2m/families/hifigpt/bench.py has the figures. B and the cache lengths are dynamic.
 """
 from __future__ import annotations
 

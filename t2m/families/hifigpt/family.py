@@ -66,6 +66,8 @@ class HiFiGPTFamily(ModelFamily):
                                 edits=SEGMENT_EDITS)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {"hifigpt": ("t2m.families.hifigpt.training",
                                   "train T2M-HiFiGPT's double-tier GPT on a residual VQ's codes")}
+    bench_subjects: ClassVar[Mapping[str, tuple[str, str]]] = {"hifigpt-vs-gpt": (
+        "t2m.families.hifigpt.bench", "T2M-HiFiGPT vs the GPT at equal width and depth: ms per step and per motion")}
     checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {
         "hifigpt": ("t2m.families.hifigpt.network", "HiFiGPT", "HiFiGPTConfig")}
     eval_run_option = "hifigpt"

@@ -23,7 +23,8 @@ TRAINING_DATA = {
                "attribution": ("Yuan et al., MoGenTS (NeurIPS 2024), released weights; trained on KIT-ML (Plappert "
                                "et al., 2016) in HumanML3D's feature layout.")},
 }
-# Measured by tests/export/test_mogents_import.py::test_full_release_sizes_match_the_reference (slow suite) at the
+# Measured by tests/families/masked/test_mogents_import.py::test_full_release_sizes_match_the_reference (slow suite) at
+# the
 # released sizes with random weights, against tests/families/masked/mogents_reference.py (an independent
 # re-implementation
 # of MoGenTS's forward passes, quirks included, and its generate loops): see t2m/families/masked/README.md.

@@ -24,7 +24,8 @@ TRAINING_DATA = {
                "attribution": ("Guo et al., MoMask (CVPR 2024), released weights; trained on KIT-ML (Plappert et al., "
                                "2016) in HumanML3D's feature layout.")},
 }
-# Measured by tests/export/test_momask_import.py::test_full_release_sizes_match_the_reference (slow suite) at the
+# Measured by tests/families/masked/test_momask_import.py::test_full_release_sizes_match_the_reference (slow suite) at
+# the
 # released sizes with random weights, against tests/families/masked/momask_reference.py (an independent
 # re-implementation
 # of MoMask's modules and generate loops): see t2m/families/masked/README.md "Importing MoMask".

@@ -11,7 +11,7 @@ motion's own (5th percentile of the lower foot's height), since a generated moti
 | invert | the lower foot above the head, at the most inverted frame (m) | > 0.10 m |
 | get_up | pelvis height over the floor at the start and at the end (m) | start < 0.45 m, end > 0.70 m |
 
-Calibration on motion capture (`python benchmarks/probes.py --cmu-clips data/cmu`, whole clips cut by the sentences'
+Calibration on motion capture (`t2m eval probes --cmu-clips data/cmu`, whole clips cut by the sentences'
 timings; measured 2026-11-26): jump passes on 0.91 of the 70 clips whose sentences say jump or hop and on 0.17 of
 the other 172 CMU clips (leaps, flips and dances do leave the floor); invert on 0.92 of the 26 cartwheel / handstand
 / flip clips and 0.01 of the others; get_up on 0.57 of the 14 "gets up / stands up" clips (the others start

@@ -4,7 +4,7 @@ A text-to-motion model can score well on distribution metrics (FID, R-precision)
 "backwards" or "left". These probes check single, physically obvious consequences of a sentence on the SMPL-22
 joints [T, 22, 3] (metres, Y up, 20 fps), each against a fixed threshold, so that a model card can say "turns left
 when asked in 9 of 10 tries". They are written for the ~3 s motions the probe runner asks for
-(benchmarks/probes.py) and are checked on real motion capture in tests/test_probes.py: each passes on a real clip of
+(t2m/quality/probes.py) and are checked on real motion capture in tests/test_probes.py: each passes on a real clip of
 its action and fails on a clearly different one.
 
 | probe | measured quantity | passes when |
@@ -22,7 +22,7 @@ smoothed) averaged over the first `START_FRAMES` frames: a generated motion star
 the probes never assume it starts facing +Z. The heading convention is motion.transforms.facing_angle's: positive
 is counter-clockwise seen from above, i.e. turning to the person's left.
 
-Calibration on motion capture (`python benchmarks/probes.py --real-clips DATASET_DIR`: the first 3 s of 15-30
+Calibration on motion capture (`t2m eval probes --real-clips DATASET_DIR`: the first 3 s of 15-30
 random Bandai-Namco clips per label): each probe passes on 73-100% of the clips of its own action (turns: 73-77%,
 as some clips turn after their third second; raised/waved hands: 80-93%, as some styles keep the hand at face
 height) and on 0-7% of the others, except where the other motion really does it too (runs move forward, a `bye`

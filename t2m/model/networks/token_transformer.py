@@ -28,8 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from t2m.families.gpt.network import sinusoid_table
 from t2m.model.networks.config import ConfigDict
+from t2m.model.networks.positions import sinusoid_table
 
 POSITIONAL = ("1d", "2d")
 

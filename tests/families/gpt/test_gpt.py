@@ -4,7 +4,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from t2m.families.gpt.network import GPTConfig, MotionGPT, sinusoid_table
+from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.model.networks.positions import sinusoid_table
 
 torch.set_num_threads(1)
 
