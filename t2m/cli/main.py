@@ -16,7 +16,7 @@ from t2m.cli.subjects import run_subject, subject_of
 # command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch. Packages that are
 # not the CLI's add their commands as entry points of the group PLUGGED_COMMANDS, each naming such a module whose
 # HELP is its one line: the HTTP service adds `t2m serve` that way, so the CLI never imports the service.
-PLUGGED_COMMANDS = "t2m-service.commands"
+PLUGGED_COMMANDS = "t2m_service.commands"
 BUILTIN_COMMANDS: dict[str, tuple[str, str]] = {
     "motion": ("t2m.cli.commands.motion", "convert between features, joints and BVH"),
     "data": ("t2m.cli.commands.data", "build a training set in HumanML3D's layout"),
