@@ -3,14 +3,13 @@ and a fatbin whose entries do not tile it exactly is refused before anything is 
 from __future__ import annotations
 
 import struct
-import sys
 from pathlib import Path
 
 import pytest
 
+from tools.gpu.fatbin_keep_arch import keep_arch, main
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
-from fatbin_keep_arch import keep_arch, main  # noqa: E402
 
 
 def entry(kind: int, sm: int, payload: bytes) -> bytes:

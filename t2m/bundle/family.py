@@ -129,7 +129,7 @@ class ModelFamily:
     # ------------------------------------------------------------------ service (onnxruntime, no torch)
 
     def serve(self, bundle: Any) -> Any:
-        """The served decoding object for a loaded bundle (t2m.service.engine.codes.FamilyCodes)."""
+        """The served decoding object for a loaded bundle (t2m.runtime.family_codes.FamilyCodes)."""
         raise NotImplementedError
 
     def capabilities_of(self, manifest: Any) -> Capabilities:

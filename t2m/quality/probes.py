@@ -177,16 +177,23 @@ def run_stream(engine: OnnxEngine, seeds: Sequence[int], guidance: float,
                          ratios, p95_ratios, changes, medians, p95s)
 
 
+def with_progress(items: list[ProbeSpec], **options: object) -> Iterable[ProbeSpec]:
+    """tqdm's bar where it is installed (the train extra); the bare items on a runtime-only install."""
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return items
+    return tqdm(items, **options)  # type: ignore[call-overload]
+
+
 def run_probes(engine: OnnxEngine, seeds: Sequence[int], guidance: float, duration: float = 3.0,
                probes: Iterable[ProbeSpec] = PROBES, stream: bool = True, bundle: str = "",
                progress: bool = True) -> ProbeReport:
     """Every probe (and the stream) on this engine; a report with every trial."""
-    from tqdm import tqdm
-
     started = time.perf_counter()
     specs = list(probes)
     summaries = []
-    for spec in tqdm(specs, desc="probes", unit="probe", disable=not progress):
+    for spec in with_progress(specs, desc="probes", unit="probe", disable=not progress):
         summaries.append(run_probe(engine, spec, seeds, guidance, duration))
         log.info("%s: pass rate %.2f, mean %.3f", spec.name, summaries[-1].pass_rate, summaries[-1].mean_value)
     stream_summary = run_stream(engine, seeds, guidance) if stream else None

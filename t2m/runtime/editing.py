@@ -26,7 +26,14 @@ from t2m.api.schemas import BodyPartEdit, ContinueEdit, InBetweenEdit, Regenerat
 from t2m.runtime.edit_context import inpaint_map
 from t2m.runtime.handles import MotionHandle, make_handle, read_handle, segment_seed
 from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S
-from t2m.runtime.types import GenerationRequest, ModelLimits, Motion, SegmentRequest, tokens_for_duration
+from t2m.runtime.types import (
+    GenerationRequest,
+    ModelLimits,
+    Motion,
+    RequestLimitError,
+    SegmentRequest,
+    tokens_for_duration,
+)
 
 __all__ = ["AnyEdit", "EditError", "EditPlan", "EditResult", "PlannedSegment", "SampledPart", "edit_in_process",
            "plan_edit"]
@@ -99,15 +106,15 @@ class EditPlan:
             out += [re.sub(r"^segments\.(\d+)\.", renumber, warning) for warning in sub.warnings]
         return list(dict.fromkeys([*out, *motion.warnings]))
 
-    def field_of(self, part: int, message: str) -> tuple[Any, ...]:
-        """The body field a sampled part's error names ("segments.0.text: ..." of its request -> the edit's)."""
-        match = re.match(r"segments\.(\d+)\.(\w+)", message)
+    def field_of(self, part: int, error: RequestLimitError) -> tuple[Any, ...]:
+        """The body field a sampled part's error is about (its request's "segments.0.text" -> the edit's)."""
         edit = self.parts[part].edit
-        if match is None:
+        where = error.location
+        if len(where) != 3 or where[0] != "segments":
             return ("body", "edits", edit)
         if self.parts[part].continued:
-            return ("body", "edits", edit, "segments", int(match[1]), match[2])
-        return ("body", "edits", edit, match[2])
+            return ("body", "edits", edit, *where[1:])
+        return ("body", "edits", edit, where[2])
 
 
 _WHAT = {"regenerate": "regenerate a segment", "append": "append segments", "prepend": "prepend segments",

@@ -160,12 +160,11 @@ class OnnxEngine:
             if best >= self.unknown_threshold:
                 continue
             nearest = "; ".join(f"{n.caption!r} {n.similarity:.2f}" for n in neighbours)
-            message = (f"segments.{index}.text: {text!r} is far from everything model {self.limits.name!r} was "
-                       f"trained on (best similarity {best:.2f} < {self.unknown_threshold:.2f}; nearest: {nearest}); "
-                       "the motion may not follow it")
+            why = (f"{text!r} is far from everything model {self.limits.name!r} was trained on (best similarity "
+                   f"{best:.2f} < {self.unknown_threshold:.2f}; nearest: {nearest}); the motion may not follow it")
             if self.unknown_text == "reject":
-                raise RequestLimitError(message)
-            warnings.append(message)
+                raise RequestLimitError(f"segments.{index}.text", why)
+            warnings.append(f"segments.{index}.text: {why}")
         return warnings
 
     def generate(self, request: GenerationRequest) -> Motion:

@@ -11,8 +11,16 @@ from typing import Any
 from t2m.runtime.limits import MAX_GUIDANCE, MAX_HANDLE_CHARS, MAX_SEED
 from t2m.runtime.types import ModelLimits
 
-__all__ = ["CHECKSUM_BYTES", "HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "_no_constant", "_number", "_packed",
-           "model_seed_guidance"]
+__all__ = [
+    "CHECKSUM_BYTES",
+    "HANDLE_PREFIX",
+    "MAX_HANDLE_CHARS",
+    "HandleError",
+    "checked_number",
+    "model_seed_guidance",
+    "no_constant",
+    "unpack_handle",
+]
 
 HANDLE_PREFIX = "t2m1."
 CHECKSUM_BYTES = 16
@@ -26,7 +34,7 @@ class HandleError(ValueError):
         self.part = part
 
 
-def _packed(handle: str, prefix: str = HANDLE_PREFIX, max_chars: int = MAX_HANDLE_CHARS) -> tuple[bytes, bytes]:
+def unpack_handle(handle: str, prefix: str = HANDLE_PREFIX, max_chars: int = MAX_HANDLE_CHARS) -> tuple[bytes, bytes]:
     """(checksum, compressed body) of a handle string of the format `prefix` names."""
     if not isinstance(handle, str) or not handle.startswith(prefix):
         raise HandleError("handle", f"not a t2m handle of this model (it starts with {prefix!r}, the format "
@@ -43,11 +51,11 @@ def _packed(handle: str, prefix: str = HANDLE_PREFIX, max_chars: int = MAX_HANDL
     return packed[:CHECKSUM_BYTES], packed[CHECKSUM_BYTES:]
 
 
-def _no_constant(name: str) -> None:
+def no_constant(name: str) -> None:
     raise ValueError(f"{name} is not a number")
 
 
-def _number(meta: dict[str, Any], key: str, low: float, high: float, *, integer: bool = False,
+def checked_number(meta: dict[str, Any], key: str, low: float, high: float, *, integer: bool = False,
             low_open: bool = False) -> Any:
     value = meta[key]
     kinds = (int,) if integer else (int, float)
@@ -65,4 +73,5 @@ def model_seed_guidance(meta: dict[str, Any], limits: ModelLimits) -> tuple[int,
         raise HandleError("handle.model", f"made by model {meta['model']!r} version {meta['version']!r}, not by "
                                           f"{limits.name!r} version {limits.version!r}: a handle is edited by the "
                                           "model that made it")
-    return _number(meta, "seed", 0, MAX_SEED, integer=True), float(_number(meta, "guidance", 0.0, MAX_GUIDANCE))
+    seed = checked_number(meta, "seed", 0, MAX_SEED, integer=True)
+    return seed, float(checked_number(meta, "guidance", 0.0, MAX_GUIDANCE))

@@ -37,10 +37,10 @@ from t2m.runtime.handle_format import (
     HANDLE_PREFIX,
     MAX_HANDLE_CHARS,
     HandleError,
-    _no_constant,
-    _number,
-    _packed,
+    checked_number,
     model_seed_guidance,
+    no_constant,
+    unpack_handle,
 )
 from t2m.runtime.limits import (
     MAX_DURATION_S,
@@ -133,7 +133,7 @@ def _max_body(limits: ModelLimits) -> int:
 
 def _unpack(handle: str, limits: ModelLimits) -> bytes:
     """The checked body of a handle string."""
-    checksum, compressed = _packed(handle)
+    checksum, compressed = unpack_handle(handle)
     inflater = zlib.decompressobj()
     limit = _max_body(limits)
     try:
@@ -155,7 +155,7 @@ def handle_model(handle: str) -> tuple[str, str]:
     yet: `read_handle` does that with the model's limits). A diffusion model's recipe (service/recipes.py) too."""
     if isinstance(handle, str) and handle.startswith(RECIPE_PREFIX):
         return recipe_model(handle)
-    _, compressed = _packed(handle)
+    _, compressed = unpack_handle(handle)
     try:
         start = zlib.decompressobj().decompress(compressed, 4 + MAX_META_BYTES)
     except zlib.error:
@@ -175,7 +175,7 @@ def _meta(body: bytes) -> tuple[dict[str, Any], bytes]:
     if size > min(MAX_META_BYTES, len(body) - 4):
         raise HandleError("handle", "its description is longer than the handle")
     try:
-        meta = json.loads(body[4:4 + size].decode("utf-8"), parse_constant=_no_constant)
+        meta = json.loads(body[4:4 + size].decode("utf-8"), parse_constant=no_constant)
     except (UnicodeDecodeError, ValueError):
         raise HandleError("handle", "its description is not JSON") from None
     if not isinstance(meta, dict) or sorted(meta) != sorted(META_KEYS):
@@ -190,10 +190,10 @@ def read_handle(handle: str, limits: ModelLimits) -> MotionHandle:
         raise HandleError("handle", f"model {limits.name!r} makes no token codes: its handles are recipes ('t2m2.')")
     meta, code_bytes = _meta(_unpack(handle, limits))
     seed, guidance = model_seed_guidance(meta, limits)
-    temperature = float(_number(meta, "temperature", 0.0, MAX_TEMPERATURE, low_open=True))
+    temperature = float(checked_number(meta, "temperature", 0.0, MAX_TEMPERATURE, low_open=True))
     top_k = meta["top_k"]
     if top_k is not None:
-        top_k = _number(meta, "top_k", 1, limits.codebook_size, integer=True)
+        top_k = checked_number(meta, "top_k", 1, limits.codebook_size, integer=True)
     if meta["shape"] != list(layout.shape) or meta["width"] != _width(limits):
         raise HandleError("handle.shape", f"code steps of shape {meta['shape']!r} x {meta['width']!r} bytes; model "
                                           f"{limits.name!r} has {list(layout.shape)} x {_width(limits)}")

@@ -32,7 +32,7 @@ from typing import Any
 from pydantic import TypeAdapter, ValidationError
 
 from t2m.api.schemas import Edit
-from t2m.runtime.handle_format import CHECKSUM_BYTES, HandleError, _no_constant, _packed, model_seed_guidance
+from t2m.runtime.handle_format import CHECKSUM_BYTES, HandleError, model_seed_guidance, no_constant, unpack_handle
 from t2m.runtime.limits import MAX_DURATION_S, MAX_SEGMENTS, MAX_TEXT_CHARS, MAX_TOTAL_S, MIN_DURATION_S
 from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, frames_for_duration
 
@@ -80,7 +80,7 @@ def make_recipe(limits: ModelLimits, request: GenerationRequest, edits: Sequence
 
 def _body(handle: str) -> dict[str, Any]:
     """The checked JSON of a recipe string (checksum, size, keys)."""
-    checksum, compressed = _packed(handle, RECIPE_PREFIX, MAX_RECIPE_CHARS)
+    checksum, compressed = unpack_handle(handle, RECIPE_PREFIX, MAX_RECIPE_CHARS)
     inflater = zlib.decompressobj()
     try:
         data = inflater.decompress(compressed, MAX_RECIPE_BYTES + 1)
@@ -93,7 +93,7 @@ def _body(handle: str) -> dict[str, Any]:
     if hashlib.sha256(data).digest()[:CHECKSUM_BYTES] != checksum:
         raise HandleError("handle.checksum", "does not match the handle's content (corrupted or altered)")
     try:
-        body = json.loads(data.decode("utf-8"), parse_constant=_no_constant)
+        body = json.loads(data.decode("utf-8"), parse_constant=no_constant)
     except (UnicodeDecodeError, ValueError):
         raise HandleError("handle", "its description is not JSON") from None
     if not isinstance(body, dict) or sorted(body) != sorted(RECIPE_KEYS):

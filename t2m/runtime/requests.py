@@ -18,12 +18,12 @@ def segment_steps(request: GenerationRequest, limits: ModelLimits, *, free: str 
     for index, segment in enumerate(request.segments):
         if segment.duration is None:
             if free is not None:
-                raise RequestLimitError(f"segments.{index}.duration: {free}")
+                raise RequestLimitError(f"segments.{index}.duration", free)
             steps.append(None)
             continue
         target = tokens_for_duration(segment.duration, limits.fps, limits.frames_per_token)
         if target > limits.max_tokens:
-            raise RequestLimitError(f"segments.{index}.duration: needs {target} tokens, the model makes at most "
+            raise RequestLimitError(f"segments.{index}.duration", f"needs {target} tokens, the model makes at most "
                                     f"{limits.max_tokens}")
         steps.append(target)
     return steps
@@ -32,4 +32,4 @@ def segment_steps(request: GenerationRequest, limits: ModelLimits, *, free: str 
 def check_top_k(request: GenerationRequest, limits: ModelLimits) -> None:
     """top_k, when given, is 1..codebook_size."""
     if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
-        raise RequestLimitError(f"top_k: must be 1..{limits.codebook_size}, got {request.top_k}")
+        raise RequestLimitError("top_k", f"must be 1..{limits.codebook_size}, got {request.top_k}")

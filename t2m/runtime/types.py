@@ -177,7 +177,19 @@ class Motion:
 
 
 class RequestLimitError(ValueError):
-    """The request breaks a limit of the loaded model; the message starts with the field (e.g. 'top_k: ...')."""
+    """The request breaks a limit of the loaded model. It carries the request field it is about (`field`, dotted:
+    "segments.1.duration", "top_k"), so that the HTTP layer answers a 422 at that field and the CLI names it; its
+    text reads "<field>: <why>"."""
+
+    def __init__(self, field: str, why: str) -> None:
+        super().__init__(f"{field}: {why}")
+        self.field = field
+        self.why = why
+
+    @property
+    def location(self) -> tuple[str | int, ...]:
+        """The field as a validation error's `loc` below the body: ("segments", 1, "duration")."""
+        return tuple(int(part) if part.isdigit() else part for part in self.field.split("."))
 
 
 class GenerationCancelled(RuntimeError):

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from t2m.export.writing.caption_index import DEFAULT_PHRASINGS
+from t2m.export.writing.index_captions import DEFAULT_PHRASINGS
 from t2m.model.evaluation.action_probes import ACTION_PROBES
 from t2m.model.evaluation.probes import PROBES
 

@@ -16,10 +16,10 @@ from t2m.model.evaluation.evaluate import (
     Clips,
     EvalOptions,
     draw,
-    join_windows,
     pelvis_velocity_jumps,
     stream_metrics,
     windows,
+    windows_at_joins,
 )
 from tests.model.synthetic_motion_data import _source_motion, make_dataset
 
@@ -185,7 +185,7 @@ def test_pelvis_velocity_jump_sees_a_step_at_the_join_only():
 def test_windows_and_draws():
     motion = np.zeros((200, 263), np.float32)
     assert len(windows(motion, 80, 40)) == 4          # starts 0, 40, 80, 120
-    assert [len(w) for w in join_windows(motion, [30, 100, 170], 80)] == [80]  # only the join at 100 fits
+    assert [len(w) for w in windows_at_joins(motion, [30, 100, 170], 80)] == [80]  # only the join at 100 fits
     rng = np.random.default_rng(0)
     clips = Clips(["a", "b"], [np.zeros((250, 263), np.float32), np.zeros((37, 263), np.float32)],
                   [["x", "y"], ["z"]])

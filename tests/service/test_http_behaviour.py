@@ -197,7 +197,7 @@ class _FailingEngine(FakeEngine):
 def test_engine_limit_error_is_422_naming_the_field(make_client):
     from t2m.runtime.types import RequestLimitError
 
-    error = RequestLimitError("segments.0.duration: needs 60 tokens, the model makes at most 50")
+    error = RequestLimitError("segments.0.duration", "needs 60 tokens, the model makes at most 50")
     client = make_client(Settings(), engine_factory=lambda s: _FailingEngine(error))
     response = client.post("/generate", json=BODY)
     assert response.status_code == 422

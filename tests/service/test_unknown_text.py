@@ -46,7 +46,7 @@ def test_index_round_trip_and_nearest(tmp_path):
 
 
 def test_threshold_choice_and_rates():
-    from t2m.export.writing.caption_index import choose_threshold, rates
+    from t2m.export.writing.index_captions import choose_threshold, rates
 
     known, unknown = np.array([0.9, 0.8, 0.75, 0.6]), np.array([0.5, 0.55, 0.7])
     threshold = choose_threshold(known, unknown)
@@ -84,7 +84,7 @@ def test_reject_mode_refuses_with_the_segment_named(default_model):
 
 def test_shipped_threshold_reproduces_the_recorded_rates(default_model, default_engine):
     """The card's false/missed warning counts, recomputed from the shipped index and the phrasings file."""
-    from t2m.export.writing.caption_index import DEFAULT_PHRASINGS
+    from t2m.export.writing.index_captions import DEFAULT_PHRASINGS
 
     manifest = json.loads((default_model / "manifest.json").read_text())
     recorded = manifest["caption_index"]["calibration"]
@@ -171,7 +171,7 @@ def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp
     from synthetic_motion_data import make_dataset
 
     from t2m.cli.main import main
-    from t2m.export.writing.caption_index import encode_with_bundle, training_captions
+    from t2m.export.writing.index_captions import encode_with_bundle, training_captions
     from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
     from t2m.families.diffusion.served import encode_token_states, pooled_token_states
     from t2m.runtime.engine import OnnxEngine

@@ -53,10 +53,10 @@ class TinyCodes:
         rows = []
         for index, segment in enumerate(request.segments):
             if segment.duration is None:
-                raise RequestLimitError(f"segments.{index}.duration: the tiny family needs a duration")
+                raise RequestLimitError(f"segments.{index}.duration", "the tiny family needs a duration")
             rows.append(tokens_for_duration(segment.duration, limits.fps, limits.frames_per_token))
             if rows[-1] > limits.max_tokens:
-                raise RequestLimitError(f"segments.{index}.duration: needs {rows[-1]} tokens, the model makes at "
+                raise RequestLimitError(f"segments.{index}.duration", f"needs {rows[-1]} tokens, the model makes at "
                                         f"most {limits.max_tokens}")
         return TinyJob(conds=text.encode([s.text for s in request.segments]), rows=rows, guidance=request.guidance,
                        temperature=request.temperature, rng=np.random.default_rng(request.seed))

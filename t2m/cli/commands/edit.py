@@ -88,7 +88,7 @@ def _edit(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from t2m.api.schemas import EditRequest
-    from t2m.cli.commands.generate import _one_line
+    from t2m.cli.commands.generate import one_line
     from t2m.cli.main import CliError
 
     fmt = FORMATS.get(args.output.suffix.lower())
@@ -97,7 +97,7 @@ def _edit(args: argparse.Namespace) -> int:
     try:
         body = EditRequest.model_validate({**_source(args.motion), "edits": _edits(args), "format": fmt})
     except ValidationError as error:
-        raise CliError(_one_line(error.errors())) from None
+        raise CliError(one_line(error.errors())) from None
     if not args.output.parent.exists():
         raise CliError(f"{args.output.parent}: output directory does not exist")
 

@@ -84,7 +84,7 @@ def _field_name(loc: tuple[Any, ...]) -> str:
     return "--" + str(loc[0]).replace("_", "-") if loc else "request"
 
 
-def _one_line(errors: Sequence[Mapping[str, Any]]) -> str:
+def one_line(errors: Sequence[Mapping[str, Any]]) -> str:
     return "; ".join(f"{_field_name(tuple(e['loc']))}: {e['msg']}" for e in errors)
 
 
@@ -102,7 +102,7 @@ def _generate(args: argparse.Namespace) -> int:
     try:
         request = GenerateRequest.model_validate(body)
     except ValidationError as error:
-        raise CliError(_one_line(error.errors())) from None
+        raise CliError(one_line(error.errors())) from None
     if not args.output.parent.exists():
         raise CliError(f"{args.output.parent}: output directory does not exist")
 
@@ -115,7 +115,7 @@ def _generate(args: argparse.Namespace) -> int:
     engine = OnnxEngine.load(bundle)
     errors = model_limit_errors(request, engine.limits)
     if errors:
-        raise CliError(_one_line([{**e, "loc": e["loc"][1:]} for e in errors]))
+        raise CliError(one_line([{**e, "loc": e["loc"][1:]} for e in errors]))
     seed = request.seed if request.seed is not None else secrets.randbits(31)
     generation = to_generation_request(request, engine.limits, seed)
     motion = engine.generate(generation)

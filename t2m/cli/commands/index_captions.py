@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from t2m.export.writing.caption_index import DEFAULT_PHRASINGS, add_caption_index
+    from t2m.export.writing.index_captions import DEFAULT_PHRASINGS, add_caption_index
 
     if not (args.data / "texts").is_dir():
         raise CliError(f"--data {args.data}: no texts/ directory (expected a dataset in HumanML3D's layout)")

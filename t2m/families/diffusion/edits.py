@@ -30,7 +30,6 @@ identical and the ones after it the same motion rigidly moved (the root's path i
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -65,11 +64,11 @@ def _job(engine: Any, segments: Sequence[SegmentRequest], seed: int, guidance: f
     try:
         return engine.codes.job(request, engine.text, engine.limits)
     except RequestLimitError as error:
-        match = re.match(r"segments\.(\d+)\.(\w+): (.*)", str(error), re.S)
-        if match is None:
+        field = error.location
+        if len(field) != 3 or field[0] != "segments":
             raise EditError(loc, str(error)) from None
-        where = (*loc, "segments", int(match[1]), match[2]) if continued else (*loc, match[2])
-        raise EditError(where, match[3], None) from None
+        where = (*loc, *field) if continued else (*loc, field[2])
+        raise EditError(where, error.why, None) from None
 
 
 def _concat_frames(parts: Sequence[np.ndarray], features: int) -> np.ndarray:

@@ -13,6 +13,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -107,7 +108,7 @@ def write_release(root: Path, args: dict, state: dict[str, torch.Tensor],
 
 # the small text encoders of the default suite: a 2-layer CLIP tower with ViT-B/32's 512-d features, a 1-layer
 # DistilBERT with the released width (768: embed_text takes 768-d states)
-SMALL_CLIP = {"width": 64, "layers": 2, "embed_dim": 512}
+SMALL_CLIP: dict[str, Any] = {"width": 64, "layers": 2, "embed_dim": 512}
 SMALL_BERT = {"max_position_embeddings": 64, "dim": 768, "n_layers": 1, "n_heads": 12, "hidden_dim": 64}
 # name -> (args.json, trans_dec); trans_dec is also the DistilBERT text encoder in these releases
 RELEASES = {"paper": (PAPER_ARGS, False), "fifty": (FIFTY_ARGS, False), "bert": (BERT_ARGS, True),

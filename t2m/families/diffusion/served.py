@@ -168,10 +168,10 @@ class DiffusionCodes:
 
     def job(self, request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> DiffusionRequest:
         if request.top_k is not None:
-            raise RequestLimitError(f"top_k: model {limits.name!r} is a diffusion model and draws no codes; leave "
+            raise RequestLimitError("top_k", f"model {limits.name!r} is a diffusion model and draws no codes; leave "
                                     "top_k out")
         if request.temperature != 1.0:
-            raise RequestLimitError(f"temperature: model {limits.name!r} is a diffusion model (DDPM sampling has no "
+            raise RequestLimitError("temperature", f"model {limits.name!r} is a diffusion model (DDPM sampling has no "
                                     f"temperature); leave it at 1, got {request.temperature:g}")
         frames = [int(steps) for steps in segment_steps(
             request, limits, free=f"model {limits.name!r} has no length estimator; give this segment a duration "

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -131,7 +132,7 @@ def _ts_shared(state: dict, s: MogentsSizes, rand: _Random, pe_noise: float, hea
 
 def ts_masked_state(s: MogentsSizes, seed: int = 11, std: float = 0.05, pe_noise: float = 0.0) -> dict:
     """'t2m_transformer_ts' (300 tensors at 8 layers a stack)."""
-    rand, state = _Random(seed, std), {}
+    rand, state = _Random(seed, std), dict[str, torch.Tensor]()
     _ts_shared(state, s, rand, pe_noise, head_out=s.nb_code2d)
     state["token_emb.weight"] = rand(s.nb_code2d + 2, s.code_dim2d, scale=1.0)
     return state
@@ -139,7 +140,7 @@ def ts_masked_state(s: MogentsSizes, seed: int = 11, std: float = 0.05, pe_noise
 
 def ts_residual_state(s: MogentsSizes, seed: int = 12, std: float = 0.05, pe_noise: float = 0.0) -> dict:
     """'res_transformer_ts' with share_weight (304 tensors): 258-row tables (codes, mask, pad)."""
-    rand, state = _Random(seed, std), {}
+    rand, state = _Random(seed, std), dict[str, torch.Tensor]()
     vocab, table = s.nb_code2d + 2, 3 / math.sqrt(s.code_dim2d)
     state["embed_proj_shared_weight"] = rand(s.quantizers - 2, vocab, s.code_dim2d, scale=table)
     state["token_embed_weight_"] = rand(1, vocab, s.code_dim2d, scale=table)
@@ -189,13 +190,13 @@ def write_release(root: Path, states: MogentsStates, *, dataset: str = "humanml3
     np.save(files["mean"], states.mean)
     np.save(files["std"], states.std)
     if latest:
-        masked = {"mask_transformer_aux": states.masked_aux, "mask_transformer_ts": states.masked_ts}
+        masked: dict[str, Any] = {"mask_transformer_aux": states.masked_aux, "mask_transformer_ts": states.masked_ts}
         entries = _training_entries(states.masked_aux, "mask_transformer_aux", 10**6)   # as torch writes them
         masked |= {"opt_mask_transformer_aux": entries["opt_mask_transformer_aux"],
                    "scheduler_aux": entries["scheduler"]}
         masked |= {"ep": 616, "total_it": 123456}
-        residual = {"res_transformer_aux": states.residual_aux, "res_transformer_ts": states.residual_ts, "ep": 217,
-                    "total_it": 654321}
+        residual: dict[str, Any] = {"res_transformer_aux": states.residual_aux,
+                                    "res_transformer_ts": states.residual_ts, "ep": 217, "total_it": 654321}
     else:
         masked = {"t2m_transformer_aux": states.masked_aux, "t2m_transformer_ts": states.masked_ts, "ep": 616,
                   "best_value": 0.0934}

@@ -60,7 +60,7 @@ def _conv(state: dict, key: str, out_ch: int, in_ch: int, kernel: int, rand: _Ra
 
 def vq_state(s: MomaskSizes, seed: int = 0) -> dict[str, torch.Tensor]:
     """'vq_model': encoder.* / decoder.* convs (dilations are not stored) and quantizer.layers.{i}.codebook."""
-    rand, state = _Random(seed, 1.0), {}
+    rand, state = _Random(seed, 1.0), dict[str, torch.Tensor]()
     w = s.width
     _conv(state, "encoder.model.0", w, s.feat_dim, 3, rand)
     for i in (2, 3):
@@ -122,7 +122,7 @@ def _shared(state: dict, s: MomaskSizes, rand: _Random, pe_noise: float, head_ou
 def masked_state(s: MomaskSizes, seed: int = 1, std: float = 0.05, pe_noise: float = 0.0) -> dict[str, torch.Tensor]:
     """'t2m_transformer' (108 tensors at the release's 8 layers). ``pe_noise`` != 0: a PE that is not the sinusoid,
     which only an importer that reads the checkpoint's table reproduces."""
-    rand, state = _Random(seed, std), {}
+    rand, state = _Random(seed, std), dict[str, torch.Tensor]()
     _shared(state, s, rand, pe_noise, head_out=s.nb_code)
     state["token_emb.weight"] = rand(s.nb_code + 2, s.code_dim, scale=1.0)
     return state
@@ -131,7 +131,7 @@ def masked_state(s: MomaskSizes, seed: int = 1, std: float = 0.05, pe_noise: flo
 def residual_state(s: MomaskSizes, seed: int = 2, std: float = 0.05, pe_noise: float = 0.0) -> dict[str, torch.Tensor]:
     """'res_transformer' with share_weight (112 tensors at the release's 8 layers). Its tables are both embeddings
     and classifiers: at 3 / sqrt(code_dim) the logits are a few units, at any width."""
-    rand, state = _Random(seed, std), {}
+    rand, state = _Random(seed, std), dict[str, torch.Tensor]()
     vocab, table = s.nb_code + 1, 3 / math.sqrt(s.code_dim)
     state["embed_proj_shared_weight"] = rand(s.quantizers - 2, vocab, s.code_dim, scale=table)
     state["token_embed_weight_"] = rand(1, vocab, s.code_dim, scale=table)

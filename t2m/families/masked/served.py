@@ -94,7 +94,7 @@ class MaskedCodes:
         for index, (paint, own) in enumerate(zip(request.inpaint, steps)):
             kept = None if paint is None else paint.keep[1] - paint.keep[0]
             if paint is None and own is None:
-                raise RequestLimitError(f"segments.{index}.duration: give a duration in seconds")
+                raise RequestLimitError(f"segments.{index}.duration", "give a duration in seconds")
             if paint is not None and (paint.known.shape[1:] != self.code_layout.shape or paint.rows > limits.max_tokens
                                       or own not in (None, kept)):
                 raise ValueError(f"segment {index}: an inpaint map of {paint.known.shape} keeping {kept} rows does "

@@ -241,7 +241,7 @@ def windows(motion: np.ndarray, window: int, stride: int) -> list[np.ndarray]:
     return [motion[s:s + window] for s in range(0, len(motion) - window + 1, stride)]
 
 
-def join_windows(motion: np.ndarray, joins: Sequence[int], window: int) -> list[np.ndarray]:
+def windows_at_joins(motion: np.ndarray, joins: Sequence[int], window: int) -> list[np.ndarray]:
     """Windows of `window` frames centred on each join that fit inside the motion."""
     half = window // 2
     return [motion[j - half:j - half + window] for j in joins if j - half >= 0 and j - half + window <= len(motion)]
@@ -543,7 +543,7 @@ def stream_metrics(evaluator: MotionEvaluator | None, motions: Sequence[np.ndarr
     for motion, frames in zip(motions, segment_frames):
         joins = [int(j) for j in np.cumsum(frames)[:-1]]
         sliding += windows(motion, options.window, options.stride)
-        transition += join_windows(motion, joins, options.window)
+        transition += windows_at_joins(motion, joins, options.window)
         jumps_at, jumps_in = pelvis_velocity_jumps(features_to_joints(motion), joins)
         at_joins.append(jumps_at)
         inside.append(jumps_in)

@@ -57,13 +57,13 @@ def read_clip_state(path: str | Path) -> dict[str, torch.Tensor]:
                 state = torch.jit.load(str(path), map_location="cpu").state_dict()
         except Exception as error:
             raise ClipWeightsError(
-                f"{path}: unreadable TorchScript archive ({_one_line(error)}); expected {EXPECTED}") from None
+                f"{path}: unreadable TorchScript archive ({one_line(error)}); expected {EXPECTED}") from None
     else:
         try:
             state = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as error:
             raise ClipWeightsError(
-                f"{path}: not a complete PyTorch file ({_one_line(error)}); expected {EXPECTED}") from None
+                f"{path}: not a complete PyTorch file ({one_line(error)}); expected {EXPECTED}") from None
     if not isinstance(state, Mapping):
         raise ClipWeightsError(f"{path}: holds a {type(state).__name__}, not a dict of tensors; expected {EXPECTED}")
     if not all(isinstance(v, torch.Tensor) for v in state.values()):
@@ -162,6 +162,6 @@ def _shape(shape: tuple[int, ...] | torch.Size) -> str:
     return "[" + ", ".join(str(int(n)) for n in shape) + "]"
 
 
-def _one_line(error: BaseException) -> str:
+def one_line(error: BaseException) -> str:
     text = " ".join(str(error).split())
     return (text[:200] + "...") if len(text) > 200 else (text or type(error).__name__)

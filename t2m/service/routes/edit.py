@@ -24,17 +24,17 @@ from t2m.runtime.served_models import ServedModel
 from t2m.runtime.types import GenerationRequest, Motion, RequestLimitError, SegmentRequest
 from t2m.runtime.uploads import uploaded_handle
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
-from t2m.service.routes.generate import _RESPONSES, http_error, motion_answer
+from t2m.service.routes.generate import ERROR_RESPONSES, http_error, motion_answer
 
 __all__ = ["router"]
 
 router = APIRouter(tags=["generation"])
 
 _EDIT_RESPONSES: dict[int | str, dict[str, Any]] = {
-    **_RESPONSES,
+    **ERROR_RESPONSES,
     200: {"description": "The edited motion. json: EditResponse (with a new handle); bvh: BVH text; glb: glTF binary. "
                          "Headers: X-Seed (the handle's seed), X-T2M-Warnings (if any).",
-          "content": {media: schema for media, schema in _RESPONSES[200]["content"].items()
+          "content": {media: schema for media, schema in ERROR_RESPONSES[200]["content"].items()
                       if media != STREAM_MEDIA_TYPE}},
 }
 
@@ -153,7 +153,7 @@ async def _sample(plan: EditPlan, model: ServedModel, state: ServiceState) -> li
         if isinstance(error, RequestLimitError):
             failed = next(i for i, task in enumerate(tasks) if task.done() and not task.cancelled()
                           and task.exception() is error)
-            raise RequestValidationError([{"type": "value_error", "loc": plan.field_of(failed, str(error)),
+            raise RequestValidationError([{"type": "value_error", "loc": plan.field_of(failed, error),
                                            "msg": str(error), "input": None}]) from None
         if isinstance(error, Exception):
             raise http_error(error, state.settings) from None

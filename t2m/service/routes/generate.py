@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 
 router = APIRouter(tags=["generation"])
 
-_RESPONSES: dict[int | str, dict[str, Any]] = {
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {"description": "The motion. json: MotionResponse; bvh: BVH text; glb: glTF binary. "
                          "Headers: X-Seed (the seed used), X-T2M-Warnings (if any; a stream has its warnings in its "
                          "end message). With stream: true, newline-delimited JSON: {type: start, fps, joints, "
@@ -66,7 +66,7 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
-@router.post("/generate", response_model=MotionResponse, responses=_RESPONSES,
+@router.post("/generate", response_model=MotionResponse, responses=ERROR_RESPONSES,
              dependencies=[Depends(require_api_key)], summary="Generate a motion from sentences")
 async def generate(body: GenerateRequest, state: ServiceState = Depends(ready_state)) -> Response:
     """Each segment's text becomes `duration` seconds of motion (or as long as the model decides when null),
@@ -123,10 +123,9 @@ def http_error(error: Exception, settings: Settings) -> Exception:
     if isinstance(error, GenerationCancelled):
         return HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, detail=str(error),
                              headers={"Retry-After": str(settings.retry_after_s)})
-    if isinstance(error, RequestLimitError):   # a limit the engine checks itself; the message starts with the field
-        field = str(error).split(":", 1)[0]
-        loc = ("body", *(int(part) if part.isdigit() else part for part in field.split(".")))
-        return RequestValidationError([{"type": "value_error", "loc": loc, "msg": str(error), "input": None}])
+    if isinstance(error, RequestLimitError):   # a limit the engine checks itself, at the field it names
+        return RequestValidationError([{"type": "value_error", "loc": ("body", *error.location), "msg": str(error),
+                                        "input": None}])
     return error
 
 
