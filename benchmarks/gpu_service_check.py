@@ -33,7 +33,7 @@ def _small_clip(workdir: Path) -> Path:
 def import_momask_release(workdir: Path, release_sizes: bool) -> Path:
     """`t2m import momask` of random release-layout checkpoints: the bundle folder."""
     from t2m.families.masked.import_momask import import_momask
-    from t2m.families.masked.momask_release import (  # type: ignore[import-not-found]
+    from t2m.families.masked.momask_release import (
         RELEASE,
         SMALL,
         release_states,
@@ -52,7 +52,7 @@ def import_t2m_gpt_release(workdir: Path, release_sizes: bool) -> Path:
     """`t2m import t2m-gpt --cuda-graph-step` of random release-layout checkpoints (the release's 18 layers of 1024,
     or a small stand-in): the bundle folder."""
     from t2m.families.gpt.import_t2m_gpt import import_t2m_gpt
-    from t2m.families.gpt.t2m_gpt_release import (  # type: ignore[import-not-found]
+    from t2m.families.gpt.t2m_gpt_release import (
         release_gpt_state,
         release_vq_state,
         write_release_files,

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -55,6 +55,7 @@ class _Engine(Protocol):
                warnings: list[str]) -> Motion | BaseException: ...
 
 
+@runtime_checkable
 class CohortSource(Protocol):
     """A family's codes object that can start a cohort (GptCodes, HiFiGPTCodes)."""
 

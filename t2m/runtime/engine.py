@@ -22,11 +22,18 @@ from t2m.bundle import CaptionIndex, get_family
 from t2m.motion.features import features_to_joints
 from t2m.motion.skeleton import get_skeleton
 from t2m.runtime.bundle_loader import Bundle, load_bundle
-from t2m.runtime.continuous import PreparedJobs, RunningCohorts
+from t2m.runtime.continuous import CohortSource, PreparedJobs, RunningCohorts
 from t2m.runtime.decoder import Decoder
 from t2m.runtime.early_frames import FrameStreamer
 from t2m.runtime.execution import Execution
-from t2m.runtime.family_codes import FamilyCodes, code_layout, decoder_reach, ends_segments
+from t2m.runtime.family_codes import (
+    FamilyCodes,
+    body_parts,
+    code_layout,
+    decoder_reach,
+    ends_segments,
+    recipe_handles,
+)
 from t2m.runtime.reach import DecoderReach, probe_reach
 from t2m.runtime.requests import segment_steps
 from t2m.runtime.step_order import StepOrder
@@ -102,9 +109,9 @@ class OnnxEngine:
                      **({manifest.family: raw[manifest.family]} if manifest.family in raw else {})},
             ends_segments=ends_segments(self.codes), codes=code_layout(self.codes), edits=self.capabilities.edits,
             inpaints=self.capabilities.inpaints,
-            body_parts=dict(getattr(self.codes, "body_parts", {})) if "body_part" in self.capabilities.edits else {},
+            body_parts=body_parts(self.codes) if "body_part" in self.capabilities.edits else {},
             encodes=bundle.encoder_session is not None and code_layout(self.codes) is not None,
-            recipe=bool(getattr(self.codes, "recipe_handles", False)))
+            recipe=recipe_handles(self.codes))
 
     @classmethod
     def load(cls, path: str | Path, *, check_hashes: bool = True, intra_op_threads: int = 0,
@@ -247,15 +254,10 @@ class OnnxEngine:
         family, not autoregressive: run-to-completion micro-batching)."""
         if not self.capabilities.continuous_batching:
             return None
-        return RunningCohorts(self, self.codes, order)  # type: ignore[arg-type]  # such families start cohorts
-
-    @property
-    def step(self) -> Any:
-        """The GPT family's step graph (t2m.families.gpt.loop.GptStep), as tests drive it directly."""
-        step = getattr(self.codes, "step", None)
-        if step is None:
-            raise AttributeError(f"a {self.bundle.manifest.family!r} bundle has no GPT step")
-        return step
+        if not isinstance(self.codes, CohortSource):
+            raise TypeError(f"family {self.bundle.manifest.family!r} declares continuous batching, but its served "
+                            "object starts no cohorts (no `cohort` method)")
+        return RunningCohorts(self, self.codes, order)
 
     def _motion(self, request: GenerationRequest, segment_codes: list[np.ndarray], warnings: list[str]) -> Motion:
         per_token = self.limits.frames_per_token

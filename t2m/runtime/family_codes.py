@@ -12,15 +12,16 @@ object whose codes are tokens says what a step of them is in a `code_layout` att
 answer's handle carries and checks; see `code_layout`); without it answers carry no handle."""
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from t2m.runtime.text import TextEncoder
 from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 
-__all__ = ["FamilyCodes", "FamilyJob", "code_layout", "decoder_reach", "ends_segments"]
+__all__ = ["BodyParts", "EndsSegments", "FamilyCodes", "FamilyJob", "HasCodeLayout", "MeasuresDecoderReach",
+           "RecipeHandles", "body_parts", "code_layout", "decoder_reach", "ends_segments", "recipe_handles"]
 
 
 class FamilyJob(Protocol):
@@ -42,21 +43,65 @@ class FamilyCodes(Protocol):
         ...
 
 
+@runtime_checkable
+class EndsSegments(Protocol):
+    """A served object whose model can end a segment given no duration, and says how ("its End token")."""
+
+    ends_segments: str
+
+
+@runtime_checkable
+class MeasuresDecoderReach(Protocol):
+    """A served object whose decoder.onnx reads something other than codes (the diffusion family's frames), so it
+    measures that decoder's reach itself (t2m.runtime.reach.DecoderReach)."""
+
+    decoder_reach: Any
+
+
+@runtime_checkable
+class HasCodeLayout(Protocol):
+    """A served object whose codes are tokens: what one step of them is (an answer's handle carries and checks it)."""
+
+    code_layout: CodeLayout
+
+
+@runtime_checkable
+class BodyParts(Protocol):
+    """A served object that edits body parts: part name -> the token columns (or channels) it covers."""
+
+    body_parts: Mapping[str, Any]
+
+
+@runtime_checkable
+class RecipeHandles(Protocol):
+    """A served object whose answers' handles are recipes, replayed (the diffusion family), not codes."""
+
+    recipe_handles: bool
+
+
 def ends_segments(codes: object) -> str | None:
-    """How the family's served object ends a segment of null duration ("its End token"), None when it cannot: its
-    optional `ends_segments` attribute."""
-    how = getattr(codes, "ends_segments", None)
-    return how if isinstance(how, str) and how else None
+    """How the family's served object ends a segment of null duration, None when it cannot."""
+    return codes.ends_segments if isinstance(codes, EndsSegments) and codes.ends_segments else None
 
 
 def decoder_reach(codes: object) -> Any:
-    """The decoder's reach the family's served object measured itself (its optional `decoder_reach` attribute), or
-    None: the engine probes the decoder with codes (engine/reach.py)."""
-    return getattr(codes, "decoder_reach", None)
+    """The decoder's reach the family's served object measured itself, or None: the engine probes the decoder with
+    codes (t2m/runtime/reach.py)."""
+    return codes.decoder_reach if isinstance(codes, MeasuresDecoderReach) else None
 
 
 def code_layout(codes: object) -> CodeLayout | None:
-    """What one step of the family's codes is (its optional `code_layout` attribute), or None: its codes are not
-    tokens (the diffusion family's frames) and its answers carry no handle."""
-    layout = getattr(codes, "code_layout", None)
-    return layout if isinstance(layout, CodeLayout) else None
+    """What one step of the family's codes is, or None: its codes are not tokens (the diffusion family's frames)
+    and its answers carry no handle."""
+    return codes.code_layout if isinstance(codes, HasCodeLayout) and isinstance(codes.code_layout, CodeLayout) \
+        else None
+
+
+def body_parts(codes: object) -> dict[str, Any]:
+    """The parts the family's served object can edit, {} when it edits none."""
+    return dict(codes.body_parts) if isinstance(codes, BodyParts) else {}
+
+
+def recipe_handles(codes: object) -> bool:
+    """Whether the family's served object answers with recipes (replayed) instead of codes."""
+    return isinstance(codes, RecipeHandles) and bool(codes.recipe_handles)

@@ -29,12 +29,12 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeVar
+from typing import Protocol, TypeVar
 
 from t2m.runtime.continuous import PreparedJobs, Sampled
 from t2m.runtime.requests import segment_steps
 from t2m.runtime.step_order import ShortestFirst, StepOrder
-from t2m.runtime.types import Engine, GenerationCancelled, GenerationRequest, Motion
+from t2m.runtime.types import Engine, GenerationCancelled, GenerationRequest, Motion, SteppingEngine
 
 T = TypeVar("T")
 
@@ -46,7 +46,7 @@ __all__ = [
     "QueueFullError",
     "QueuedRequest",
     "QueuedWorkers",
-    "SerialWork",
+    "Work",
     "admit",
     "batcher_for",
     "rows_of",
@@ -64,24 +64,29 @@ class GenerationTimeout(TimeoutError):
     """The request did not finish within its time limit."""
 
 
-class SerialWork:
-    """Work that does not go through a model's batcher (a diffusion edit: its recipe replayed on the engine) run one
-    at a time per model, and never started once its deadline has passed: a caller that timed out waiting (a 504)
-    leaves no work behind it; only the one edit already running finishes late."""
+class Work:
+    """Work for a model's engine that is not a generation (a diffusion edit: its recipe replayed and inpainted),
+    queued and run by the model's batcher like a request, so that the queue's bound, its order and the queue-depth
+    and in-flight metrics see it. It runs alone in its batch; cancelled (its caller timed out) before a worker takes
+    it, it never runs."""
 
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
+    def __init__(self, run: Callable[[], object]) -> None:
+        self.run = run
+        self._cancelled = threading.Event()
 
-    def run(self, deadline: float, work: Callable[..., T], *args: Any) -> T:
-        """`work(*args)` in turn; GenerationTimeout when its turn comes after `deadline` (time.monotonic())."""
-        with self._lock:
-            if time.monotonic() >= deadline:
-                raise GenerationTimeout("the edit waited past its time limit behind other edits of this model")
-            return work(*args)
+    def cancel(self) -> None:
+        self._cancelled.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancelled.is_set()
 
 
-def rows_of(request: GenerationRequest) -> int:
-    """Rows a request occupies per step: one per segment, two with guidance (cond + null)."""
+def rows_of(request: GenerationRequest | Work, max_rows: int = 0) -> int:
+    """Rows a request occupies per step: one per segment, two with guidance (cond + null); a Work item takes the
+    whole batch (`max_rows`), so it runs alone."""
+    if isinstance(request, Work):
+        return max_rows
     return len(request.segments) * (1 if request.guidance == 1.0 else 2)
 
 
@@ -89,18 +94,23 @@ def rows_of(request: GenerationRequest) -> int:
 class QueuedRequest:
     """A request waiting for a worker, with the Future its answer goes to."""
 
-    request: GenerationRequest
+    request: GenerationRequest | Work
     future: Future = field(default_factory=Future)
     enqueued: float = field(default_factory=time.perf_counter)
+
+
+def generation_requests(queued: Sequence[QueuedRequest]) -> list[GenerationRequest]:
+    """The generations among queued items (a Work item runs alone, and a ContinuousBatcher queues none)."""
+    return [item.request for item in queued if isinstance(item.request, GenerationRequest)]
 
 
 def admit(queue: deque[QueuedRequest], rows_running: int, max_rows: int) -> list[QueuedRequest]:
     """The one admission rule: take from the head of `queue` who joins now, given `rows_running` rows stepping."""
     joining: list[QueuedRequest] = []
     rows = rows_running
-    while queue and (rows == 0 or rows + rows_of(queue[0].request) <= max_rows):
+    while queue and (rows == 0 or rows + rows_of(queue[0].request, max_rows) <= max_rows):
         joining.append(queue.popleft())
-        rows += rows_of(joining[-1].request)
+        rows += rows_of(joining[-1].request, max_rows)
     return joining
 
 
@@ -137,8 +147,9 @@ class QueuedWorkers:
         """Requests a worker holds: admitted (within the batch window) or being generated."""
         return self._in_flight
 
-    def submit_nowait(self, request: GenerationRequest) -> Future:
-        """Queue a request; its Future resolves to a Motion. Raises QueueFullError if the queue is at its bound."""
+    def submit_nowait(self, request: GenerationRequest | Work) -> Future:
+        """Queue a request (its Future resolves to a Motion) or a Work item (to what it returns). Raises
+        QueueFullError if the queue is at its bound."""
         with self._cond:
             if self._closed:
                 raise RuntimeError("the engine is shutting down")
@@ -159,6 +170,22 @@ class QueuedWorkers:
             raise GenerationTimeout(f"generation did not finish within {timeout_s:g} s") from None
         except asyncio.CancelledError:   # the client went away: stop spending CPU on it
             request.cancel()
+            raise
+
+    async def run(self, work: Callable[[], T], timeout_s: float) -> T:
+        """`work()` in the model's queue, without blocking the event loop; GenerationTimeout after `timeout_s` (the
+        work is then cancelled: not started if no worker took it yet)."""
+        item = Work(work)
+        if not isinstance(self, MicroBatcher):
+            raise TypeError(f"{type(self).__name__} runs generations only; other work needs a MicroBatcher")
+        future = self.submit_nowait(item)
+        try:
+            return await asyncio.wait_for(asyncio.wrap_future(future), timeout_s)
+        except asyncio.TimeoutError:
+            item.cancel()
+            raise GenerationTimeout(f"the work did not finish within {timeout_s:g} s") from None
+        except asyncio.CancelledError:
+            item.cancel()
             raise
 
     def close(self, timeout_s: float = 5.0) -> None:
@@ -195,7 +222,7 @@ class QueuedWorkers:
             while True:
                 taken = admit(self._queue, rows, self.max_batch_rows)
                 joining += taken
-                rows += sum(rows_of(queued.request) for queued in taken)
+                rows += sum(rows_of(queued.request, self.max_batch_rows) for queued in taken)
                 self._in_flight += len(taken)
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0 or self._queue or rows >= self.max_batch_rows or self._closed:
@@ -236,8 +263,16 @@ class MicroBatcher(QueuedWorkers):
                 continue
             self.batches_run += 1
             self.largest_batch = max(self.largest_batch, len(live))
+            work = live[0].request
+            if isinstance(work, Work):   # admitted alone (it takes the whole batch)
+                try:
+                    result: object = work.run()
+                except BaseException as error:  # the work's own errors go to its caller
+                    result = error
+                self._finish(live[0], result)
+                continue
             try:
-                results: Sequence[object] = self.engine.generate_batch([queued.request for queued in live])
+                results: Sequence[object] = self.engine.generate_batch(generation_requests(live))
             except BaseException as error:  # an engine failure fails its batch, never the worker
                 log.exception("generation batch of %d failed", len(live))
                 results = [error] * len(live)
@@ -272,10 +307,9 @@ class CohortRunner(Protocol):
 def running_cohorts(engine: Engine, order: StepOrder | None = None) -> CohortRunner | None:
     """A new continuous session of `engine` stepping its cohorts in `order` (engine/step_order.py; None: the
     default, shortest work first), or None if it has none (its family runs batches to their end)."""
-    make = getattr(engine, "continuous", None)
-    if not callable(make):
+    if not isinstance(engine, SteppingEngine):
         return None
-    return make(order) if order is not None else make()
+    return engine.continuous(order) if order is not None else engine.continuous()
 
 
 class ContinuousBatcher(QueuedWorkers):
@@ -286,8 +320,9 @@ class ContinuousBatcher(QueuedWorkers):
                  step_order: StepOrder | None = None) -> None:
         """`on_step(steps)` runs in the worker after each step boundary (tests use it to submit mid-run);
         `step_order`: which cohorts step at a boundary (engine/step_order.py; None: shortest work first)."""
-        if running_cohorts(engine) is None:
+        if not isinstance(engine, SteppingEngine) or running_cohorts(engine) is None:
             raise TypeError(f"{type(engine).__name__} has no continuous session; use MicroBatcher")
+        self.stepping: SteppingEngine = engine
         self.on_step = on_step
         self.step_order = step_order or ShortestFirst()
         self.joins_mid_run = 0       # requests that joined while another was part-way through (all workers)
@@ -298,11 +333,11 @@ class ContinuousBatcher(QueuedWorkers):
         """Whether a request much smaller (the order's ratio) than a cohort of `size` steps waits to join (queued,
         or admitted and being prepared): then the boundary ends before that cohort (engine/continuous.py
         RunningCohorts.advance_codes)."""
-        ratio = getattr(self.step_order, "ratio", None)
+        ratio = self.step_order.ratio
         if ratio is None:
             return False
         with self._cond:
-            waiting = [queued.request for queued in self._queue]
+            waiting = generation_requests(self._queue)
         return any(ratio * self._request_steps(request) < size for request in [*waiting, *preparing])
 
     def _request_steps(self, request: GenerationRequest) -> int:
@@ -345,14 +380,13 @@ class ContinuousBatcher(QueuedWorkers):
                 if live and session.idle:   # nothing steps: no reason to hand over
                     self._admit(session, live, None, running)
                 elif live:
-                    preparing = live, helper.submit(self.engine.prepare,   # type: ignore[attr-defined]
-                                                    [queued.request for queued in live])
+                    preparing = live, helper.submit(self.stepping.prepare, generation_requests(live))
                 if preparing and (session.idle or preparing[1].done()):
                     ready, preparing = preparing, None
                     self._admit(session, *ready, running=running)
                 if session.idle:
                     continue
-                waiting = tuple(queued.request for queued in preparing[0]) if preparing else ()
+                waiting = tuple(generation_requests(preparing[0])) if preparing else ()
                 for done in session.advance_codes(interrupt=functools.partial(self._smaller_waiting,
                                                                               preparing=waiting)):
                     helper.submit(self._decode, running.pop(id(done.request)), done)
@@ -369,7 +403,7 @@ class ContinuousBatcher(QueuedWorkers):
                running: dict[int, QueuedRequest]) -> None:
         """Start `live` as a cohort with the jobs `prepared` made (None: prepare them here); those that failed
         before sampling are answered now (all of them, if the preparation itself raised: the running ones go on)."""
-        requests = [queued.request for queued in live]
+        requests = generation_requests(live)
         if prepared is not None:
             try:
                 jobs = prepared.result()
@@ -392,7 +426,7 @@ class ContinuousBatcher(QueuedWorkers):
         """On the helper: a request whose codes are done, decoded and answered (with the failure, if any: nothing
         raised on the helper may leave a request unanswered)."""
         try:
-            result = self.engine.finish(done.request, done.codes, done.notes)  # type: ignore[attr-defined]
+            result = self.stepping.finish(done.request, done.codes, done.notes)
         except BaseException as error:
             log.exception("decoding a finished request failed")
             result = error

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from t2m.runtime.scheduling import QueuedWorkers, SerialWork
+from t2m.runtime.scheduling import QueuedWorkers
 from t2m.runtime.types import Engine, ModelLimits
 
 __all__ = ["DuplicateModelError", "LoadedEngine", "ModelLoadError", "ModelRegistry", "ServedModel", "load_engines"]
@@ -41,7 +41,6 @@ class ServedModel:
     engine: Engine
     batcher: QueuedWorkers
     load_seconds: float
-    serial: SerialWork = field(default_factory=SerialWork)   # edits that bypass the batcher (diffusion recipes)
 
     @property
     def limits(self) -> ModelLimits:

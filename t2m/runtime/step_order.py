@@ -25,7 +25,11 @@ StepOrderName = Literal["shortest-first", "every-cohort"]
 
 
 class StepOrder(Protocol):
-    """Chooses the cohorts that step at a boundary."""
+    """Chooses the cohorts that step at a boundary. `ratio`: how much smaller (in steps) a waiting request must be
+    than a running cohort for the boundary to end before that cohort; None: nothing waits for smaller work."""
+
+    @property
+    def ratio(self) -> float | None: ...
 
     def choose(self, sizes: Sequence[int], skipped: Sequence[int]) -> list[bool]:
         """Per cohort (oldest first): whether it steps now, given the size in steps of its smallest unfinished
@@ -40,6 +44,8 @@ class StepOrder(Protocol):
 @dataclass(frozen=True)
 class EveryCohort:
     """Every cohort at every boundary (round robin over the cohorts' calls)."""
+
+    ratio: float | None = None
 
     def choose(self, sizes: Sequence[int], skipped: Sequence[int]) -> list[bool]:
         return [True] * len(sizes)

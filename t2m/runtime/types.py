@@ -8,7 +8,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -17,6 +17,8 @@ from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 __all__ = [
     "CodeLayout",
+    "ComposingEngine",
+    "EncodingEngine",
     "Engine",
     "FrameSink",
     "GenerationCancelled",
@@ -26,6 +28,7 @@ __all__ = [
     "RequestLimitError",
     "SegmentRequest",
     "SegmentSpan",
+    "SteppingEngine",
     "frames_for_duration",
     "tokens_for_duration",
 ]
@@ -197,10 +200,46 @@ class GenerationCancelled(RuntimeError):
 
 
 class Engine(Protocol):
-    """What the service needs from an engine (OnnxEngine, or a stand-in in tests)."""
+    """What every batcher needs from an engine (OnnxEngine, or a stand-in in tests). The abilities only some engines
+    have are the protocols below, checked with isinstance."""
 
     limits: ModelLimits
 
     def generate_batch(self, requests: Sequence[GenerationRequest]) -> list[Motion | BaseException]:
         """Generate several requests together; a failure of one request is returned in its place."""
+        ...
+
+
+@runtime_checkable
+class SteppingEngine(Engine, Protocol):
+    """An engine whose requests can join running work at step boundaries (continuous batching): it prepares requests
+    off the stepping thread, runs sessions of cohorts, and finishes each request from its codes."""
+
+    def continuous(self, order: Any = None) -> Any:
+        """A running session (t2m.runtime.continuous.RunningCohorts), or None when its family runs batches whole."""
+        ...
+
+    def prepare(self, requests: Sequence[GenerationRequest]) -> Any:
+        """The requests' jobs (texts encoded, generators seeded), failures in their places."""
+        ...
+
+    def finish(self, request: GenerationRequest, segment_codes: list[np.ndarray] | None,
+               warnings: list[str]) -> Motion | BaseException:
+        """A request's motion from its sampled codes (None: cancelled on the way), or its failure."""
+        ...
+
+
+@runtime_checkable
+class EncodingEngine(Protocol):
+    """An engine that turns motion features into its codes (a bundle with encoder.onnx): uploads are edited."""
+
+    def encode(self, features: np.ndarray) -> np.ndarray:
+        ...
+
+
+@runtime_checkable
+class ComposingEngine(Protocol):
+    """An engine that decodes codes it is given into a motion (the token families): edits of handles."""
+
+    def compose(self, request: GenerationRequest, segment_codes: Sequence[np.ndarray]) -> Motion:
         ...

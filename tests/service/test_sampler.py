@@ -160,7 +160,7 @@ def test_greedy_codes_match_pytorch_reference(torch_bundle, guidance):
     cond = engine.text.encode(texts)
     expected = torch_sample_codes(gpt, torch.from_numpy(cond), targets, guidance=guidance, greedy=True)
     job = _job(cond, targets, guidance=guidance, top_k=1)
-    (ours,) = sample_codes(engine.step, [job], engine.limits.max_tokens, engine.bundle.manifest.settings.end_id)
+    (ours,) = sample_codes(engine.codes.step, [job], engine.limits.max_tokens, engine.bundle.manifest.settings.end_id)
     assert [c.tolist() for c in ours] == expected
     lengths = [len(c) for c in expected]
     assert lengths[0] == 3 and lengths[2] == 7 and lengths[4] == 20
@@ -183,7 +183,8 @@ def test_seeded_sampling_matches_pytorch_reference(torch_bundle, guidance, tempe
         expected = torch_sample_codes(gpt, cond, targets, guidance=guidance, temperature=temperature, top_k=top_k,
                                       rng=seed)
         job = _job(cond, targets, guidance=guidance, temperature=temperature, top_k=top_k, seed=seed)
-        (ours,) = sample_codes(engine.step, [job], engine.limits.max_tokens, engine.bundle.manifest.settings.end_id)
+        (ours,) = sample_codes(engine.codes.step, [job], engine.limits.max_tokens,
+                               engine.bundle.manifest.settings.end_id)
         assert [c.tolist() for c in ours] == expected, seed
         other_seed = torch_sample_codes(gpt, cond, targets, guidance=guidance, temperature=temperature,
                                         top_k=top_k, rng=seed + 100)

@@ -7,7 +7,6 @@ Stateless: the handle carries everything (service/handles.py)."""
 from __future__ import annotations
 
 import asyncio
-import time
 from typing import Any
 
 from fastapi import APIRouter, Depends, Response
@@ -19,9 +18,16 @@ from t2m.families.diffusion.edits import edit_recipe
 from t2m.runtime.editing import EditError, EditPlan, plan_edit
 from t2m.runtime.formats import STREAM_MEDIA_TYPE
 from t2m.runtime.handles import HandleError, handle_model, read_handle
-from t2m.runtime.scheduling import GenerationTimeout
+from t2m.runtime.scheduling import GenerationTimeout, QueueFullError
 from t2m.runtime.served_models import ServedModel
-from t2m.runtime.types import GenerationRequest, Motion, RequestLimitError, SegmentRequest
+from t2m.runtime.types import (
+    ComposingEngine,
+    EncodingEngine,
+    GenerationRequest,
+    Motion,
+    RequestLimitError,
+    SegmentRequest,
+)
 from t2m.runtime.uploads import uploaded_handle
 from t2m.service.dependencies import ServiceState, ready_state, require_api_key
 from t2m.service.routes.generate import ERROR_RESPONSES, http_error, motion_answer
@@ -90,8 +96,8 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
         return await _edit_recipe(body, model, state)
     try:
         if body.motion is not None:
-            handle = await run_in_threadpool(uploaded_handle, body.motion, limits,
-                                             getattr(model.engine, "encode", None))
+            encode = model.engine.encode if isinstance(model.engine, EncodingEngine) else None
+            handle = await run_in_threadpool(uploaded_handle, body.motion, limits, encode)
         else:
             assert body.handle is not None
             handle = read_handle(body.handle, limits)
@@ -101,32 +107,32 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     except EditError as error:
         raise RequestValidationError([error.error()]) from None
     sampled = await _sample(plan, model, state)
-    compose = getattr(model.engine, "compose", None)
-    if compose is None:
+    if not isinstance(model.engine, ComposingEngine):
         raise _handle_error(HandleError("handle", f"model {limits.name!r} cannot decode codes it is given"))
     request = plan.request(handle)
-    motion: Motion = await run_in_threadpool(compose, request, plan.codes([m.codes or [] for m in sampled]))
+    motion: Motion = await run_in_threadpool(model.engine.compose, request,
+                                             plan.codes([m.codes or [] for m in sampled]))
     motion.warnings = plan.warnings(sampled, motion)
     state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
     edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
     return await motion_answer(motion, body.format, limits, request, {"edited": edited})
 
 async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceState) -> Response:
-    """A diffusion model's edit (service/diffusion_edits.py): the handle is a recipe, replayed and edited on the
-    model's frames in a worker thread (the engine directly, not through the batcher): one edit of a model at a time
-    (ServedModel.serial), a 504 past T2M_REQUEST_TIMEOUT_S, and an edit whose turn comes after that never runs."""
+    """A diffusion model's edit (t2m/families/diffusion/edits.py): the handle is a recipe, replayed and edited on
+    the model's frames as one work item of the model's batcher (queued and counted like a request: a 429 when the
+    queue is full, a 504 past T2M_REQUEST_TIMEOUT_S, and an edit whose turn comes after that never runs)."""
     if body.handle is None:
         raise RequestValidationError([{"type": "value_error", "loc": ("body", "motion"), "msg": f"model "
                                        f"{model.limits.name!r} is a diffusion model: it edits the motions it made "
                                        "(their handles), not uploads", "input": None}])
     timeout = state.settings.request_timeout_s
-    deadline = time.monotonic() + timeout
+    handle, edits = body.handle, body.edits
     try:
-        result = await asyncio.wait_for(
-            run_in_threadpool(model.serial.run, deadline, edit_recipe, model.engine, body.handle, body.edits),
-            timeout)
-    except (TimeoutError, GenerationTimeout):
+        result = await model.batcher.run(lambda: edit_recipe(model.engine, handle, edits), timeout)
+    except GenerationTimeout:
         raise http_error(GenerationTimeout(f"the edit did not finish within {timeout:g} s"), state.settings) from None
+    except QueueFullError as error:
+        raise http_error(error, state.settings) from None
     except HandleError as error:
         raise _handle_error(error) from None
     except EditError as error:

@@ -351,12 +351,12 @@ def test_append_and_prepend_keep_the_motion(engines, originals, arch, op):
 
 
 def test_an_edit_past_its_time_limit_is_a_504_and_queued_work_past_its_deadline_never_runs(bundles, make_client):
-    """Diffusion edits bypass the batcher: they still answer 504 after T2M_REQUEST_TIMEOUT_S, and one whose turn
-    (ServedModel.serial, one edit of a model at a time) comes after its deadline is not started at all."""
+    """Diffusion edits go through the model's batcher as work items: they answer 504 after T2M_REQUEST_TIMEOUT_S,
+    and one whose caller timed out while it waited behind other work is never started."""
+    import asyncio
     import threading
-    import time
 
-    from t2m.runtime.scheduling import GenerationTimeout, SerialWork
+    from t2m.runtime.scheduling import GenerationTimeout, MicroBatcher
 
     client = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1, request_timeout_s=1e-4))
     handle = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1)).post(
@@ -365,19 +365,64 @@ def test_an_edit_past_its_time_limit_is_a_504_and_queued_work_past_its_deadline_
         {"text": "a person sits down", "duration": 1.0}]}]})
     assert late.status_code == 504 and "T2M_REQUEST_TIMEOUT_S" in late.json()["detail"]
 
-    serial, ran = SerialWork(), []
-    holding = threading.Event()
+    batcher = MicroBatcher(engine=None, workers=1)  # type: ignore[arg-type]  # work items need no engine
+    ran: list[str] = []
+    holding, release = threading.Event(), threading.Event()
 
-    def hold() -> None:
+    def hold() -> str:
         holding.set()
-        time.sleep(0.3)
+        release.wait(5)
         ran.append("first")
+        return "first"
 
-    first = threading.Thread(target=serial.run, args=(time.monotonic() + 10, hold))
-    first.start()
-    holding.wait()
-    with pytest.raises(GenerationTimeout, match="waited past its time limit"):
-        serial.run(time.monotonic() + 0.05, ran.append, "second")   # its turn comes after its deadline
-    first.join()
+    async def scenario() -> None:
+        first = asyncio.ensure_future(batcher.run(hold, 10))
+        await asyncio.get_running_loop().run_in_executor(None, holding.wait)
+        with pytest.raises(GenerationTimeout):
+            await batcher.run(lambda: ran.append("second"), 0.05)   # waits behind `hold`, its caller gives up
+        release.set()
+        assert await first == "first"
+        assert await batcher.run(lambda: "third", 10) == "third"
+
+    asyncio.run(scenario())
+    batcher.close()
     assert ran == ["first"]
-    assert serial.run(time.monotonic() + 10, lambda: "third") == "third"
+
+
+def test_an_edit_in_flight_is_counted_on_metrics(bundles, make_client, monkeypatch):
+    """A diffusion edit is work of the model's batcher: while it runs, /metrics counts it in t2m_in_flight (what
+    the queue-depth autoscaler and drain checks read), and the count drops when it is answered."""
+    import re
+    import threading
+
+    import t2m.service.routes.edit as edit_route
+
+    client = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1))
+    name = client.get("/health").json()["default"]
+    handle = client.post("/generate", json={"segments": [{"text": "a person walks", "duration": 1.0}],
+                                            "seed": 1}).json()["handle"]
+    started, release = threading.Event(), threading.Event()
+    real_edit = edit_route.edit_recipe
+
+    def held_edit(*args):
+        started.set()
+        release.wait(10)
+        return real_edit(*args)
+
+    monkeypatch.setattr(edit_route, "edit_recipe", held_edit)
+
+    def in_flight() -> float:
+        text = client.get("/metrics").text
+        return float(re.search(rf'^t2m_in_flight{{model="{re.escape(name)}"}} (\S+)$', text, re.M).group(1))
+
+    assert in_flight() == 0
+    answers: list = []
+    body = {"handle": handle, "edits": [{"segment": 0, "text": "a person runs"}]}
+    editing = threading.Thread(target=lambda: answers.append(client.post("/edit", json=body)))
+    editing.start()
+    assert started.wait(10)
+    assert in_flight() == 1
+    release.set()
+    editing.join(20)
+    assert answers and answers[0].status_code == 200, answers[0].text
+    assert in_flight() == 0
