@@ -27,6 +27,7 @@ from t2m.runtime.edit_context import inpaint_map
 from t2m.runtime.handles import MotionHandle, make_handle, read_handle, segment_seed
 from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S
 from t2m.runtime.types import (
+    ComposingEngine,
     GenerationRequest,
     ModelLimits,
     Motion,
@@ -121,7 +122,7 @@ _WHAT = {"regenerate": "regenerate a segment", "append": "append segments", "pre
          "in_between": "fill a gap between segments (in_between)", "body_part": "regenerate a body part (body_part)"}
 
 
-def _check_kind(kind: str, index: int, limits: ModelLimits) -> None:
+def check_edit_kind(kind: str, index: int, limits: ModelLimits) -> None:
     """The model's family declares the kind (and, for the inpainted kinds, its loop inpaints); else a 422 at `op`."""
     if kind in limits.edits and (kind not in INPAINTED or limits.inpaints):
         return
@@ -181,7 +182,7 @@ def plan_edit(handle: MotionHandle, edits: Sequence[AnyEdit], limits: ModelLimit
     between: dict[int, PlannedSegment] = {}
     seen: set[int] = set()
     for index, edit in enumerate(edits):
-        _check_kind(edit.op, index, limits)
+        check_edit_kind(edit.op, index, limits)
         if isinstance(edit, (RegenerateEdit, BodyPartEdit)):
             _segment_index(edit.segment, ("body", "edits", index, "segment"), handle, seen)
             old = handle.segments[edit.segment]
@@ -273,16 +274,22 @@ class EditResult:
     edited: list[tuple[int, int]]
 
 
-def edit_in_process(engine: Any, handle: str | MotionHandle, edits: Sequence[AnyEdit]) -> EditResult:
-    """An edit with an OnnxEngine directly, as POST /edit makes it (parts sampled one after the other instead of
-    through the queue: the same codes, each request drawing from its own generator); `handle` a handle string or
-    one already read (an uploaded motion's: service/uploads.py). HandleError / EditError / RequestLimitError as the
-    route's 422s."""
-    limits = engine.limits
-    kept = handle if isinstance(handle, MotionHandle) else read_handle(handle, limits)
-    plan = plan_edit(kept, edits, limits)
-    sampled = [engine.generate(part.request) for part in plan.parts]
+def finish_edit(engine: ComposingEngine, kept: MotionHandle, plan: EditPlan, sampled: Sequence[Motion]) -> EditResult:
+    """An edit of a handle's codes from its sampled parts (however they were sampled: in process, or through the
+    model's batcher by POST /edit): every segment's codes in order, decoded once, the parts' warnings, the new
+    handle. The one place such an edit is put together."""
     request = plan.request(kept)
     motion = engine.compose(request, plan.codes([m.codes or [] for m in sampled]))
     motion.warnings = plan.warnings(sampled, motion)
-    return EditResult(motion, make_handle(limits, request, motion.codes), plan.edited())
+    motion.handle = make_handle(engine.limits, request, motion.codes)
+    return EditResult(motion, motion.handle, plan.edited())
+
+
+def edit_in_process(engine: Any, handle: str | MotionHandle, edits: Sequence[AnyEdit]) -> EditResult:
+    """An edit with an OnnxEngine directly, as POST /edit makes it (parts sampled one after the other instead of
+    through the queue: the same codes, each request drawing from its own generator); `handle` a handle string or
+    one already read (an uploaded motion's: t2m/runtime/uploads.py). HandleError / EditError / RequestLimitError as
+    the route's 422s."""
+    kept = handle if isinstance(handle, MotionHandle) else read_handle(handle, engine.limits)
+    plan = plan_edit(kept, edits, engine.limits)
+    return finish_edit(engine, kept, plan, [engine.generate(part.request) for part in plan.parts])

@@ -28,6 +28,7 @@ from t2m.runtime.early_frames import FrameStreamer
 from t2m.runtime.execution import Execution
 from t2m.runtime.family_codes import (
     FamilyCodes,
+    RecipeHandles,
     body_parts,
     code_layout,
     decoder_reach,
@@ -247,6 +248,13 @@ class OnnxEngine:
             raise ValueError(f"{len(segment_codes)} code arrays for {len(request.segments)} segments")
         dtype = np.float32 if self.limits.recipe else np.int64   # the diffusion family's codes are its frames
         return self._motion(request, [np.asarray(codes, dtype=dtype) for codes in segment_codes], [])
+
+    def edit_recipe(self, handle: str, edits: Sequence[Any]) -> Any:
+        """The edit of one of this model's recipe handles, made by its family's served object on its own frames
+        (the diffusion family); a model whose handles are codes has none (ValueError)."""
+        if not isinstance(self.codes, RecipeHandles):
+            raise ValueError(f"model {self.limits.name!r} answers with handles of codes, not recipes")
+        return self.codes.edit_recipe(self, handle, edits)
 
     def continuous(self, order: StepOrder | None = None) -> RunningCohorts | None:
         """A continuous-batching session (requests join and leave at step boundaries; `order` picks the cohorts

@@ -74,9 +74,14 @@ class BodyParts(Protocol):
 
 @runtime_checkable
 class RecipeHandles(Protocol):
-    """A served object whose answers' handles are recipes, replayed (the diffusion family), not codes."""
+    """A served object whose answers' handles are recipes, replayed (the diffusion family), not codes: it makes an
+    edit of such a handle itself, on its own frames."""
 
     recipe_handles: bool
+
+    def edit_recipe(self, engine: Any, handle: str, edits: Sequence[Any]) -> Any:
+        """The edit of a recipe handle (t2m.runtime.editing.EditResult); HandleError / EditError for a 422."""
+        ...
 
 
 def ends_segments(codes: object) -> str | None:

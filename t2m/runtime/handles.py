@@ -51,10 +51,20 @@ from t2m.runtime.limits import (
     MIN_DURATION_S,
 )
 from t2m.runtime.recipes import RECIPE_PREFIX, make_recipe, recipe_model
-from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, tokens_for_duration
+from t2m.runtime.types import GenerationRequest, ModelLimits, Motion, SegmentRequest, tokens_for_duration
 
-__all__ = ["HANDLE_PREFIX", "MAX_HANDLE_CHARS", "HandleError", "HandleSegment", "MotionHandle", "handle_model",
-           "make_handle", "read_handle", "segment_seed"]
+__all__ = [
+    "HANDLE_PREFIX",
+    "MAX_HANDLE_CHARS",
+    "HandleError",
+    "HandleSegment",
+    "MotionHandle",
+    "answer_handle",
+    "handle_model",
+    "make_handle",
+    "read_handle",
+    "segment_seed",
+]
 
 MAX_META_BYTES = 64 * 1024        # 32 segments of 300 characters, escaped, and the rest
 META_KEYS = ("model", "version", "seed", "guidance", "temperature", "top_k", "shape", "width", "segments")
@@ -98,6 +108,13 @@ def segment_seed(seed: int, where: int | str) -> int:
 def _width(limits: ModelLimits) -> int:
     assert limits.codes is not None
     return 2 if max(limits.codes.bounds) - limits.codes.low <= 1 << 16 else 4
+
+
+def answer_handle(limits: ModelLimits, request: GenerationRequest, motion: Motion) -> str | None:
+    """The handle an answer of `motion` to `request` carries (the one place an answer's handle is made: POST
+    /generate whole or streamed, POST /edit, `t2m generate`, `t2m edit`): the one its maker already set (an edit's
+    recipe), else the handle of its codes."""
+    return motion.handle if motion.handle is not None else make_handle(limits, request, motion.codes)
 
 
 def make_handle(limits: ModelLimits, request: GenerationRequest, codes: Sequence[np.ndarray] | None) -> str | None:

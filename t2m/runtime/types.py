@@ -25,6 +25,7 @@ __all__ = [
     "GenerationRequest",
     "ModelLimits",
     "Motion",
+    "RecipeEditingEngine",
     "RequestLimitError",
     "SegmentRequest",
     "SegmentSpan",
@@ -234,6 +235,14 @@ class EncodingEngine(Protocol):
     """An engine that turns motion features into its codes (a bundle with encoder.onnx): uploads are edited."""
 
     def encode(self, features: np.ndarray) -> np.ndarray:
+        ...
+
+
+@runtime_checkable
+class RecipeEditingEngine(Protocol):
+    """An engine whose answers' handles are recipes (the diffusion family): it edits such a handle itself."""
+
+    def edit_recipe(self, handle: str, edits: Sequence[Any]) -> Any:
         ...
 
 

@@ -109,7 +109,7 @@ def _generate(args: argparse.Namespace) -> int:
     from t2m.bundles import configured_default_bundle
     from t2m.runtime.engine import OnnxEngine
     from t2m.runtime.formats import render
-    from t2m.runtime.handles import make_handle
+    from t2m.runtime.handles import answer_handle
 
     bundle = args.model if args.model is not None else configured_default_bundle()
     engine = OnnxEngine.load(bundle)
@@ -119,7 +119,7 @@ def _generate(args: argparse.Namespace) -> int:
     seed = request.seed if request.seed is not None else secrets.randbits(31)
     generation = to_generation_request(request, engine.limits, seed)
     motion = engine.generate(generation)
-    handle = make_handle(engine.limits, generation, motion.codes) if fmt == "json" else None   # `t2m edit` takes it
+    handle = answer_handle(engine.limits, generation, motion) if fmt == "json" else None   # `t2m edit` takes it
     rendered = render(motion, fmt, engine.limits, handle)
     args.output.write_bytes(rendered.body)
     frames = len(motion.joints)

@@ -38,7 +38,7 @@ import numpy as np
 
 from t2m.api.schemas import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
 from t2m.runtime.edit_context import context_sides
-from t2m.runtime.editing import AnyEdit, EditError, EditResult, _check_kind
+from t2m.runtime.editing import AnyEdit, EditError, EditResult, check_edit_kind
 from t2m.runtime.handles import HandleError, segment_seed
 from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S
 from t2m.runtime.recipes import MAX_EDIT_STEPS, Recipe, make_recipe, read_recipe
@@ -210,7 +210,7 @@ def _checked(engine: Any, segments: list[FrameSegment], edits: Sequence[AnyEdit]
     count, total = len(segments), sum(s.duration for s in segments)
     for index, edit in enumerate(edits):
         try:
-            _check_kind(edit.op, index, limits)
+            check_edit_kind(edit.op, index, limits)
         except EditError as error:
             raise EditError((*loc, index, "op"), str(error), edit.op) from None
         if isinstance(edit, (BodyPartEdit, RegenerateEdit)):

@@ -28,6 +28,7 @@ import numpy as np
 import onnxruntime as ort
 
 from t2m.bundle import BundleError
+from t2m.families.diffusion.edits import edit_recipe
 from t2m.families.diffusion.loop import (
     DiffusionJob,
     JoinWindow,
@@ -143,7 +144,11 @@ class DiffusionCodes:
     """Requests -> per-segment normalised frames with the bundle's denoiser graph."""
 
     ends_segments = None   # no length estimator: every segment needs a duration
-    recipe_handles = True  # no codes: an answer's handle is its recipe (service/recipes.py)
+    recipe_handles = True  # no codes: an answer's handle is its recipe (t2m/runtime/recipes.py)
+
+    def edit_recipe(self, engine: Any, handle: str, edits: Sequence[Any]) -> Any:
+        """An edit of one of this model's recipes: replayed, then inpainted on its frames (edits.py)."""
+        return edit_recipe(engine, handle, edits)
 
     def __init__(self, bundle: Bundle) -> None:
         manifest = bundle.manifest

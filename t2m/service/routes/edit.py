@@ -14,8 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from starlette.concurrency import run_in_threadpool
 
 from t2m.api.schemas import EditRequest, EditResponse, unknown_model_error
-from t2m.families.diffusion.edits import edit_recipe
-from t2m.runtime.editing import EditError, EditPlan, plan_edit
+from t2m.runtime.editing import EditError, EditPlan, finish_edit, plan_edit
 from t2m.runtime.formats import STREAM_MEDIA_TYPE
 from t2m.runtime.handles import HandleError, handle_model, read_handle
 from t2m.runtime.scheduling import GenerationTimeout, QueueFullError
@@ -25,6 +24,7 @@ from t2m.runtime.types import (
     EncodingEngine,
     GenerationRequest,
     Motion,
+    RecipeEditingEngine,
     RequestLimitError,
     SegmentRequest,
 )
@@ -109,13 +109,10 @@ async def edit(body: EditRequest, state: ServiceState = Depends(ready_state)) ->
     sampled = await _sample(plan, model, state)
     if not isinstance(model.engine, ComposingEngine):
         raise _handle_error(HandleError("handle", f"model {limits.name!r} cannot decode codes it is given"))
-    request = plan.request(handle)
-    motion: Motion = await run_in_threadpool(model.engine.compose, request,
-                                             plan.codes([m.codes or [] for m in sampled]))
-    motion.warnings = plan.warnings(sampled, motion)
+    result = await run_in_threadpool(finish_edit, model.engine, handle, plan, sampled)
     state.metrics.count_generation(model.name, sum(m.tokens for m in sampled), sum(len(m.segments) for m in sampled))
-    edited = [{"segment": index, "seed": seed} for index, seed in plan.edited()]
-    return await motion_answer(motion, body.format, limits, request, {"edited": edited})
+    edited = [{"segment": index, "seed": seed} for index, seed in result.edited]
+    return await motion_answer(result.motion, body.format, limits, plan.request(handle), {"edited": edited})
 
 async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceState) -> Response:
     """A diffusion model's edit (t2m/families/diffusion/edits.py): the handle is a recipe, replayed and edited on
@@ -125,10 +122,12 @@ async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceStat
         raise RequestValidationError([{"type": "value_error", "loc": ("body", "motion"), "msg": f"model "
                                        f"{model.limits.name!r} is a diffusion model: it edits the motions it made "
                                        "(their handles), not uploads", "input": None}])
+    if not isinstance(model.engine, RecipeEditingEngine):
+        raise _handle_error(HandleError("handle", f"model {model.limits.name!r} cannot edit a recipe"))
     timeout = state.settings.request_timeout_s
-    handle, edits = body.handle, body.edits
+    engine, handle, edits = model.engine, body.handle, body.edits
     try:
-        result = await model.batcher.run(lambda: edit_recipe(model.engine, handle, edits), timeout)
+        result = await model.batcher.run(lambda: engine.edit_recipe(handle, edits), timeout)
     except GenerationTimeout:
         raise http_error(GenerationTimeout(f"the edit did not finish within {timeout:g} s"), state.settings) from None
     except QueueFullError as error:

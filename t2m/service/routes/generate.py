@@ -31,7 +31,7 @@ from t2m.runtime.formats import (
     stream_start,
 )
 from t2m.runtime.frame_stream import MotionStream
-from t2m.runtime.handles import make_handle
+from t2m.runtime.handles import answer_handle
 from t2m.runtime.scheduling import GenerationTimeout, QueueFullError
 from t2m.runtime.served_models import ServedModel
 from t2m.runtime.types import GenerationCancelled, GenerationRequest, ModelLimits, Motion, RequestLimitError
@@ -100,8 +100,7 @@ async def motion_answer(motion: Motion, fmt: str, limits: ModelLimits, request: 
                         extra: dict[str, Any] | None = None) -> Response:
     """The answer of a motion made for `request` (its json with the handle and `extra`'s fields, or the file), with
     its headers: X-Seed (the request's), X-T2M-Warnings, a file's Content-Disposition."""
-    handle = None if fmt != "json" else motion.handle if motion.handle is not None else make_handle(
-        limits, request, motion.codes)
+    handle = answer_handle(limits, request, motion) if fmt == "json" else None
     rendered = await run_in_threadpool(render, motion, fmt, limits, handle, extra)
     headers = {"X-Seed": str(request.seed)}
     if motion.warnings:
@@ -162,7 +161,7 @@ async def _messages(stream: MotionStream, first: Any, model: ServedModel,
         for start in range(sent, len(item.joints), STREAM_CHUNK_FRAMES):
             yield ndjson(stream_frames(start, item.joints[start:start + STREAM_CHUNK_FRAMES]))
         state.metrics.count_generation(model.name, item.tokens, len(item.segments))
-        yield ndjson(stream_end(item, limits, make_handle(limits, stream.request, item.codes)))
+        yield ndjson(stream_end(item, limits, answer_handle(limits, stream.request, item)))
     except Exception as error:   # the 200 has gone out: the failure can only be told in the stream
         answer = http_error(error, state.settings)
         if isinstance(answer, HTTPException):

@@ -395,21 +395,21 @@ def test_an_edit_in_flight_is_counted_on_metrics(bundles, make_client, monkeypat
     import re
     import threading
 
-    import t2m.service.routes.edit as edit_route
+    import t2m.families.diffusion.served as diffusion_served
 
     client = make_client(Settings(bundle_path=bundles / "mdm", intra_op_threads=1))
     name = client.get("/health").json()["default"]
     handle = client.post("/generate", json={"segments": [{"text": "a person walks", "duration": 1.0}],
                                             "seed": 1}).json()["handle"]
     started, release = threading.Event(), threading.Event()
-    real_edit = edit_route.edit_recipe
+    real_edit = diffusion_served.edit_recipe
 
     def held_edit(*args):
         started.set()
         release.wait(10)
         return real_edit(*args)
 
-    monkeypatch.setattr(edit_route, "edit_recipe", held_edit)
+    monkeypatch.setattr(diffusion_served, "edit_recipe", held_edit)
 
     def in_flight() -> float:
         text = client.get("/metrics").text
