@@ -18,7 +18,7 @@ def test_gpu_suite_runs_on_cpu_with_toy_sizes(tmp_path):
     pytest.importorskip("torch")
     pytest.importorskip("onnx")
     result = subprocess.run(
-        [sys.executable, str(REPO / "benchmarks" / "gpu_suite.py"), "--out", str(tmp_path), "--device", "cpu",
+        [sys.executable, "-m", "benchmarks.gpu_suite", "--out", str(tmp_path), "--device", "cpu",
          "--batches", "2", "--repeats", "1", "--tiny", "--models", "t2m-gpt-release,momask-release"],
         cwd=REPO, capture_output=True, text=True, timeout=280, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
                                                                    "OMP_NUM_THREADS": "1"})
@@ -48,7 +48,7 @@ def test_gpu_suite_runs_the_default_model_in_several_processes_at_once(tmp_path)
     pytest.importorskip("torch")
     pytest.importorskip("onnx")
     result = subprocess.run(
-        [sys.executable, str(REPO / "benchmarks" / "gpu_suite.py"), "--out", str(tmp_path), "--device", "cpu",
+        [sys.executable, "-m", "benchmarks.gpu_suite", "--out", str(tmp_path), "--device", "cpu",
          "--batches", "1", "--repeats", "1", "--models", "default", "--processes", "2"],
         cwd=REPO, capture_output=True, text=True, timeout=280, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin",
                                                                    "OMP_NUM_THREADS": "1"})
@@ -83,7 +83,7 @@ def test_gpu_suite_says_what_is_missing_for_cuda(tmp_path):
 
     if torch.cuda.is_available() or "CUDAExecutionProvider" in onnxruntime.get_available_providers():
         pytest.skip("this machine has CUDA")
-    result = subprocess.run([sys.executable, str(REPO / "benchmarks" / "gpu_suite.py"), "--out", str(tmp_path)],
+    result = subprocess.run([sys.executable, "-m", "benchmarks.gpu_suite", "--out", str(tmp_path)],
                             cwd=REPO, capture_output=True, text=True, timeout=120, env={"PYTHONPATH": str(REPO),
                                                                                        "PATH": "/usr/bin:/bin"})
     assert result.returncode == 3
@@ -103,8 +103,8 @@ def test_the_wheel_travels_in_parts_and_comes_together_byte_for_byte(tmp_path):
     import zipfile
 
     repo = tmp_path / "repo"
-    (repo / "benchmarks").mkdir(parents=True)
-    (repo / "benchmarks" / "gpu_transport.sh").write_bytes((REPO / "benchmarks" / "gpu_transport.sh").read_bytes())
+    (repo / "tools" / "gpu").mkdir(parents=True)
+    (repo / "tools" / "gpu" / "transport.sh").write_bytes((REPO / "tools" / "gpu" / "transport.sh").read_bytes())
     for bundle in ("default", "gpt", "masked"):
         (repo / "t2m" / "bundles" / bundle).mkdir(parents=True)
         (repo / "t2m" / "bundles" / bundle / "manifest.json").write_text("{}")
@@ -156,10 +156,10 @@ def test_gpu_profile_sums_onnxruntimes_profile_per_operator_on_cpu(tmp_path, cap
 
 
 def test_host_loop_prints_one_row_per_loop_batch_and_draw_group():
-    """t2m/bench/host_loop.py (the decoding loops over instant steps; gpu_suite's "host loop alone" row): one table
+    """`t2m bench host-loop` (the decoding loops over instant steps; gpu_suite's "host loop alone" row): one table
     row per loop, batch and DRAW_GROUP size compared. Figures are printed, never asserted."""
     result = subprocess.run(
-        [sys.executable, str(REPO / "benchmarks" / "host_loop.py"), "--batches", "1,3", "--repeats", "1",
+        [sys.executable, "-m", "t2m.cli", "bench", "host-loop", "--batches", "1,3", "--repeats", "1",
          "--draw-groups", "2,0", "--loops", "default,momask,t2m-gpt"], cwd=REPO, capture_output=True, text=True,
         timeout=120, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
     assert result.returncode == 0, result.stderr[-2000:]
@@ -176,7 +176,7 @@ def test_gpu_service_check_serves_an_import_with_and_without_cuda_graphs_on_cpu(
     pytest.importorskip("torch")
     pytest.importorskip("onnx")
     result = subprocess.run(
-        [sys.executable, str(REPO / "benchmarks" / "gpu_service_check.py"), "--device", "cpu", "--sizes", "small",
+        [sys.executable, "-m", "benchmarks.gpu_service_check", "--device", "cpu", "--sizes", "small",
          "--repeats", "1", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600, cwd=REPO)
     assert result.returncode == 0, result.stderr[-2000:]
     table = (tmp_path / "gpu_service_check.md").read_text()

@@ -15,7 +15,7 @@ SUITE_TIMEOUT_S="${DEFAULT_S:-170}" bash "$here/run_suite.sh" "$out/default" --m
   --batches 256,1024 --processes 2,4 --repeats 3
 SUITE_TIMEOUT_S="${T2M_GPT_S:-150}" bash "$here/run_suite.sh" "$out/t2m-gpt" --models t2m-gpt-release --graphs fp16 \
   --batches 1,16 --repeats 5
-SUITE_TIMEOUT_S="${SERVICE_S:-180}" GPU_SCRIPT=benchmarks/gpu_service_check.py bash "$here/run_suite.sh" \
+SUITE_TIMEOUT_S="${SERVICE_S:-180}" GPU_SCRIPT=benchmarks.gpu_service_check bash "$here/run_suite.sh" \
   "$out/service" --sizes release --repeats 5 --models t2m-gpt,momask
 SUITE_TIMEOUT_S="${MOMASK_S:-60}" bash "$here/run_suite.sh" "$out/momask" --models momask-release \
   --graphs fp16-fused --batches 1 --repeats 5

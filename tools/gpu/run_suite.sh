@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU suite in one run: benchmarks/gpu_suite.py on CUDA, every embedded model and the release sizes,
+# The GPU suite in one run: benchmarks/gpu_suite.py (python -m benchmarks.gpu_suite) on CUDA, every embedded model and the release sizes,
 # onnxruntime-gpu with device-resident step caches against PyTorch eager on the same GPU. Prints one markdown table;
 # OUT/gpu_suite.json keeps the rows. About 3-6 minutes on an H200 (most of it exporting the 228M-parameter graph).
 #
@@ -9,7 +9,7 @@
 # PYTHONPATH, so a CPU-only onnxruntime installed in the system stays untouched and is shadowed.
 #   tools/gpu/run_suite.sh [OUT] [gpu_suite.py options...]      (OUT default: gpu-suite-out)
 set -euo pipefail
-repo="$(cd "$(dirname "$0")/.." && pwd)"
+repo="$(cd "$(dirname "$0")/../.." && pwd)"
 out="${1:-gpu-suite-out}"; shift || true
 python="${PYTHON:-python3}"
 site="${SITE:-/tmp/t2m-gpu-site}"
@@ -50,5 +50,5 @@ PY
 export LD_LIBRARY_PATH="${nvidia_libs}${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 export PYTHONPATH="$site:$repo${PYTHONPATH:+:$PYTHONPATH}"
 cd "$repo"
-# GPU_SCRIPT: another script of the same environment and options (benchmarks/gpu_profile.py)
-exec timeout "${SUITE_TIMEOUT_S:-420}" "$python" "${GPU_SCRIPT:-benchmarks/gpu_suite.py}" --out "$out" --device cuda "$@"
+# GPU_SCRIPT: another benchmark module of the same environment and options (benchmarks.gpu_profile)
+exec timeout "${SUITE_TIMEOUT_S:-420}" "$python" -m "${GPU_SCRIPT:-benchmarks.gpu_suite}" --out "$out" --device cuda "$@"

@@ -12,7 +12,7 @@
 #            then `tools/gpu/transport.sh unpack DIR SITE` and tools/gpu/run_suite.sh with SITE=SITE
 #   here:    tools/gpu/transport.sh restore
 set -euo pipefail
-repo="$(cd "$(dirname "$0")/.." && pwd)"
+repo="$(cd "$(dirname "$0")/../.." && pwd)"
 cd "$repo"
 stage=".gpu"
 provider="onnxruntime/capi/libonnxruntime_providers_cuda.so"
@@ -35,7 +35,7 @@ case "${1:-}" in
     # only the lent GPUs' machine code (sm_90: H100/H200) is kept, the other architectures' bytes are zeroed:
     # 185 MB of xz -> 52 MB, so the provider travels in one call (KEEP_SM=all keeps everything)
     if [ "${KEEP_SM:-90}" != all ]; then
-      python3 "$repo/benchmarks/fatbin_keep_arch.py" "$work/site/$provider" "$work/provider.so" --keep-sm "${KEEP_SM:-90}"
+      python3 "$repo/tools/gpu/fatbin_keep_arch.py" "$work/site/$provider" "$work/provider.so" --keep-sm "${KEEP_SM:-90}"
       mv "$work/provider.so" "$work/site/$provider"
     fi
     xz -T0 -6 -c "$work/site/$provider" | split -b "${PART_MB:-58}M" -d - "$stage/cuda.xz.part-"

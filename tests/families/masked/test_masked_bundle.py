@@ -95,7 +95,7 @@ def test_the_1d_residual_variant_decodes_one_column_maps(tmp_path):
 
 
 def test_the_embedded_gpt_bundle_still_verifies():
-    manifest = verify_bundle(Path(__file__).resolve().parents[2] / "t2m" / "bundles" / "gpt")
+    manifest = verify_bundle(Path(__file__).resolve().parents[3] / "t2m" / "bundles" / "gpt")
     assert manifest.get("family", "gpt") == "gpt"
 
 
