@@ -1,4 +1,4 @@
-"""Where a GPU step's time goes (issue 29): onnxruntime's own profile of a batch-1 run of the suite's cases, summed
+"""Where a GPU step's time goes: onnxruntime's own profile of a batch-1 run of the suite's cases, summed
 per operator and provider, beside the wall time of the same run.
 
 Why: the GPU suite (benchmarks/gpu_suite.py) found every loop far slower at batch 1 than its arithmetic needs (the

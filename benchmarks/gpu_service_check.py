@@ -1,4 +1,4 @@
-"""The service's CUDA-graph path end to end (issue 29): a MoMask import and a T2M-GPT import (`--cuda-graph-step`)
+"""The service's CUDA-graph path end to end: a MoMask import and a T2M-GPT import (`--cuda-graph-step`)
 at their release sizes (random weights in the releases' exact checkpoint layouts, a small random CLIP), each as
 imported (float32) and as `t2m quantize --scheme fp16` converts it, served by the engine plainly and with
 T2M_CUDA_GRAPHS, one 9.8 s request (49 token rows or tokens, the releases' longest) at a time: ms per request (text,

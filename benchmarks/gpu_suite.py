@@ -1,4 +1,4 @@
-"""GPU suite (issue 29): every embedded model and the release sizes, onnxruntime on CUDA with the step caches kept on
+"""GPU suite: every embedded model and the release sizes, onnxruntime on CUDA with the step caches kept on
 the device (I/O binding, t2m/runtime/bound_step.py) against the PyTorch eager reference of the same loop on
 the same GPU (t2m/model/sampling: the project's own reference steps, their caches left on the device too).
 

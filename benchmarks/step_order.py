@@ -15,7 +15,7 @@ long requests' answers/s alone and beside the probe (what they lose to it), and 
 Loopback only; bounded like load_test.py.
 
     python -m benchmarks.step_order --model t2m/bundles/default --seconds 20 --rounds 2
-    # "before" = the code of an older commit (its own default order), e.g. the commit before issue 29's scheduling:
+    # "before" = the code of an older commit (its own default order), e.g. the commit before shortest-first scheduling:
     git worktree add /tmp/before 5164bad && python -m benchmarks.step_order --before-code /tmp/before
 """
 from __future__ import annotations

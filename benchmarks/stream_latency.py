@@ -31,7 +31,7 @@ from t2m.testing.server_process import require_loopback
 
 __all__ = ["format_table", "main", "measure_stream"]
 
-GOAL_FIRST_FRAME_MS = 30.0   # issue 17's goal for a 10 s motion on the default model
+GOAL_FIRST_FRAME_MS = 30.0   # the goal for a 10 s motion on the default model
 
 
 def _whole(client: httpx.Client, url: str, body: dict) -> float:

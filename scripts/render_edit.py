@@ -1,4 +1,4 @@
-"""The README's picture of an edit (issue 27): a motion and the same motion with one segment regenerated.
+"""The README's picture of an edit: a motion and the same motion with one segment regenerated.
 
 "walk 3 s, wave 2 s, bow 3 s" is generated once; POST /edit's path (t2m.runtime.edit_runner.edit_with_engine)
 replaces the wave by "a person raises the left hand" and keeps the rest. docs/images/edit.png draws both as rows of

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# A small DiP (the diffusion family's autoregressive model, issue 26 item 6) trained on Bandai-Namco, sized for about
+# A small DiP (the diffusion family's autoregressive model) trained on Bandai-Namco, sized for about
 # 2 hours on this project's 2-core CPU machine. RUN 2026-11-26 with --steps 12000 (1 h 39 min, one thread, beside
 # other training) instead of 16000 to leave the session time for its evaluation; results, the guidance chosen on the
-# val split (7.5) and why it was not shipped: t2m/families/diffusion/README.md, docs/measurements/dip_trained_2026-11-26.log.
+# val split (7.5) and why it was not shipped: t2m/families/diffusion/README.md, docs/measurements/dip_trained.log.
 # Run from the repository root in the training environment (scripts/setup_env.sh .venv train,dev); each stage
 # writes progress, train.log, log.csv and curves.png in its run directory, and the training continues with the same
 # command plus --resume (exactly: the same losses as unbroken).

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# T2M-HiFiGPT (issue 16: a residual VQ-VAE at 8 frames per code + the double-tier GPT) trained on Bandai-Namco, sized
+# T2M-HiFiGPT (a residual VQ-VAE at 8 frames per code + the double-tier GPT) trained on Bandai-Namco, sized
 # so that all stages take about 2 hours on this project's 2-core CPU machine: the exact commands that produced
 # the default bundle t2m/bundles/default (0.2.0, 0.2.1, 0.3.0) on 2026-11-25. Stages 1 and 2 ran with ONE thread
 # beside the masked model's continued training (scripts/train_masked_model.sh, 2b/3b) and helper work, so their wall
@@ -56,7 +56,7 @@ t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --
   --text-cache "$TEXT" --steps 600 --threads 2
 
 # 3. The bundle (seeded guided rollout checks in its card), for the service, `t2m bench --bundle` and the probes.
-#    0.2.1: int8 text encoder AND step graphs (10 MB -> 2.7 MB each). Shipped by issue 17's rule, measured on the
+#    0.2.1: int8 text encoder AND step graphs (10 MB -> 2.7 MB each). Shipped by the int8 rule (Table 1 within float32's intervals, probes held), measured on the
 #    bundle as served (step 4b): Table 1 within the float32 export's intervals, the probes held, 2x faster. (0.2.0 was
 #    the same export with --int8 text only; its float32 step graphs reproduce PyTorch's rollout codes exactly.)
 #    0.3.0: the same export with stage 2c's decoder (--vq rvq_causal; the step graphs and text encoder come out byte
@@ -66,7 +66,7 @@ t2m export --family hifigpt --vq "$RUNS/rvq_causal" --hifigpt "$RUNS/hifigpt" --
 t2m index-captions t2m/bundles/default --data "$DATA"
 python scripts/share_bundle_files.py      # the gpt and masked bundles link the default's text files
 
-# 4. Evaluation (issue 16 item 5): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
+# 4. Evaluation: the same `t2m eval`, evaluator, split, repeats and stream settings as the default
 #    GPT's table, so the tables compare; crops are multiples of 8 frames (at most 192). The VQ reconstruction row's
 #    root-relative MPJPE is the residual VQ's (the goal: <= 15 mm; the 1-layer VQ: 42 mm). Generation runs the
 #    service's loop (t2m.families.hifigpt.loop) at the crops' lengths, guidance 1 and 3 on code logits.
@@ -85,7 +85,7 @@ t2m eval probes --bundle t2m/bundles/default --seeds 5 --json-out "$RUNS/probes_
 t2m bench --bundle default --bundle gpt --bundle masked --threads 1 --repeats 10    # then --threads 2
 python scripts/render_motions.py --bundle t2m/bundles/default --out docs/images --seed 0   # the README pictures
 
-# Measurements behind these choices, 2026-11-25, worktree of issue 16, on the project machine (2 cores, torch
+# Measurements behind these choices, 2026-11-25, a worktree, on the project machine (2 cores, torch
 # 2.13.0+cpu) while another session's joint-VQ training and test suite held the cores (load average 5-7: our runs
 # went about 5x slower than on an idle machine, so absolute figures below are pessimistic; the estimates above scale
 # the RATIO to the default model's step, measured side by side, by the default model's idle throughput).

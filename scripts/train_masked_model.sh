@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The masked family (issue 14, MoGenTS's joint tokens + MoMask's residual design) trained on Bandai-Namco: the exact
+# The masked family (MoGenTS's joint tokens + MoMask's residual design) trained on Bandai-Namco: the exact
 # commands that produced t2m/bundles/masked (0.1.0) on 2026-11-25, on this project's 2-core CPU machine. The machine
 # was shared with other work during the run (the VQ stage ran at about half its idle speed), so the wall times noted
 # at each stage are upper bounds. Steps were cut from the first plan (VQ 3600, masked 3000, residual 1400) to fit one
@@ -58,7 +58,7 @@ t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" -
 [ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
   --text-cache "$TEXT" --steps 600 --threads 2
 
-# 5. Evaluation (issue 14 item 3): the same `t2m eval`, evaluator, split, repeats and stream settings as the default
+# 5. Evaluation: the same `t2m eval`, evaluator, split, repeats and stream settings as the default
 #    GPT's table (scripts/train_gpt_model.sh; its evaluator run is needed here), so the two tables compare.
 #    Generation runs the service's loop (t2m.families.masked.loop): 10 re-masking steps, masked-stage guidance 4 (the
 #    bundle's default; guidance 1 was left out to fit the session), residual stage guidance 5 (MoMask's), top-k 26 on

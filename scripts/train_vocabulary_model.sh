@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Issue 28: the default model's recipe (scripts/train_hifigpt_model.sh, version 0.3.0) retrained on Bandai-Namco AND
+# The CMU actions: the default model's recipe (scripts/train_hifigpt_model.sh, version 0.3.0) retrained on Bandai-Namco AND
 # the CMU motions with people's HumanML3D sentences (t2m data merge), to see whether people's sentences widen what the
 # model follows. Every option is the default model's; only the data differ. Run from the repository root in the
 # training environment (scripts/setup_env.sh .venv train,dev); each stage writes progress, train.log, log.csv and
 # curves.png in its run directory, and continues with the same command plus --resume.
-# Started 2026-11-26 (stage 1 in the background beside the DiP training of issue 26); the timings of each stage are
+# Started 2026-11-26 (stage 1 in the background beside the DiP training); the timings of each stage are
 # written below as they are measured.
 set -euo pipefail
 SHARED="${T2M_SHARED:-../shared}"
@@ -44,7 +44,7 @@ t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --
   --val-every 1000 --save-every 500 --threads 1 --seed 0
 
 # 4. (2026-11-26 19:33-19:40: export 26 s, index 41 s, Bandai eval 87 s, probes 12 + 5 s, CMU eval 26 s; the
-#    results: docs/measurements/issue28_before_after_2026-11-26.log; not the new default by the issue's rule, shipped
+#    results: docs/measurements/cmu_actions_model_before_after.log; not the new default by the issue's rule, shipped
 #    as t2m/bundles/both: `cp runs/both/bundle/* t2m/bundles/both/ && python scripts/share_bundle_files.py
 #    t2m/bundles/both`, its card's issue-28 section written by hand, `python scripts/rehash_bundle.py t2m/bundles/both`.)
 # 4. The bundle, then the comparison with the shipped default on the SAME evaluator and test split (Bandai-Namco's;

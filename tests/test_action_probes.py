@@ -1,4 +1,4 @@
-"""The CMU actions' probes (t2m.model.evaluation.action_probes, issue 28): each passes on a motion that does its
+"""The CMU actions' probes (t2m.model.evaluation.action_probes): each passes on a motion that does its
 action and fails on the fixture clips that do not, and (with the shared data) on the captioned CMU clips at the
 rates its docstring states. Synthetic actions are made from a real standing clip so that only the probed quantity
 changes."""

@@ -1,4 +1,4 @@
-"""Editing one segment of a motion vs generating the whole motion again (issue 27), engine level (no HTTP).
+"""Editing one segment of a motion vs generating the whole motion again, engine level (no HTTP).
 
 A 3-sentence 8 s motion ("walk 3 s, wave 2 s, bow 3 s") is generated once; then, alternating, the whole request is
 generated again (what a client without /edit does to change the wave) and the wave alone is edited the way POST

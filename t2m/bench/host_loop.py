@@ -2,7 +2,7 @@
 its release sizes (t2m/decoding), with steps that answer instantly (fixed outputs of the real sizes), so everything
 timed is sampling, guidance, bookkeeping and Python. Why: on a GPU the network calls of a large batch are cheap, and
 a loop that spends longer on the host than the GPU spends on its calls caps motions per second whatever the GPU does
-(issue 29's goals: the default model at 1,000 10-s motions/s, MoMask's 10 s motion in 20 ms).
+(the GPU goals: the default model at 1,000 10-s motions/s, MoMask's 10 s motion in 20 ms).
 benchmarks/gpu_suite.py adds the default loop over instant steps as a "host loop alone" row, so the cap is measured
 on the device's own CPU beside its GPU rows.
 

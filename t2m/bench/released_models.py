@@ -21,7 +21,7 @@ max |diff| of a whole seeded run with injected noise, float32 vs int8.
     OMP_NUM_THREADS=1 t2m bench released [--repeats 3] [--threads 1 2]
         [--schemes float32,int8,int4] [--workdir DIR]   (keep the releases and bundles there; bundles already there
         are reused) [--models mdm-1000,mdm-50,dip]   (a subset; default all six; --schemes applies to the three
-        token-model releases) [--json-out FILE]   (the token models' figures, for benchmarks/issue29_goals.py)
+        token-model releases) [--json-out FILE]   (the token models' figures)
 """
 from __future__ import annotations
 

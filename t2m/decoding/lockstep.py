@@ -214,7 +214,7 @@ class DrawPlan:
     The segments are drawn in runs of whole jobs of about DRAW_GROUP segments: the same numbers (each row's
     operations and each job's generator are its own), but a run's float64 arrays stay in the CPU's cache. At a
     GPU's batch sizes that matters: the default model's loop at 1,024 motions spent 1.6x less time on the host, the
-    same at 256 and fewer (t2m/bench/host_loop.py, docs/measurements/host_loop_2026-11-27.log)."""
+    same at 256 and fewer (t2m/bench/host_loop.py, docs/measurements/host_loop.log)."""
 
     def __init__(self, rows: Rows, going: Sequence[tuple[SamplingJob, Sequence[int]]], draws: int = 1) -> None:
         self.draws, self.drawn = draws, 0

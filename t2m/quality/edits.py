@@ -1,5 +1,5 @@
 """Does an edited span follow its new text, and are the edit's borders as smooth as a generated stream's joins?
-(issue 27, "Measured"). Engine level, the path POST /edit takes (t2m.runtime.edit_runner.edit_with_engine).
+("Measured"). Engine level, the path POST /edit takes (t2m.runtime.edit_runner.edit_with_engine).
 
 Per model and seed: "walk 3 s, wave 2 s, bow 3 s" is generated; its wave is edited into "a person raises the left
 hand"; as the reference, "walk 3 s, raise the left hand 2 s, bow 3 s" is generated whole with the same seed. Printed:

@@ -1,4 +1,4 @@
-"""Joins before and after exact durations (issue 25): the pelvis-velocity change at the joins of 3-sentence requests
+"""Joins before and after exact durations: the pelvis-velocity change at the joins of 3-sentence requests
 whose durations are not whole code steps, on each embedded model, for the decoded frames (whole steps, rounded spans)
 and for ways of fitting each segment to round(duration * fps) frames.
 

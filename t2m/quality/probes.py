@@ -9,7 +9,7 @@ pelvis velocity jump at each join is compared with the changes inside the segmen
     t2m eval probes                                  # t2m/bundles/default, 5 seeds, the model's guidance
     t2m eval probes --bundle DIR --seeds 5 --guidance 3 --json-out artifacts/probes.json
     t2m eval probes --real-clips DATASET_DIR --per-content 20   # on motion capture (the archive's dataset/)
-    t2m eval probes --probes jump,invert,get_up       # the CMU actions' probes (issue 28) on a model
+    t2m eval probes --probes jump,invert,get_up       # the CMU actions' probes on a model
     t2m eval probes --cmu-clips data/cmu              # ... and on the captioned CMU clips (t2m data build)
 """
 from __future__ import annotations

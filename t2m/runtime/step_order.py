@@ -1,7 +1,7 @@
 """Which running cohorts step at a step boundary: the shortest work first, with a bound on how long others wait.
 
 On a CPU a step's cost grows with its rows, and every cohort is its own graph call: when every cohort steps at every
-boundary (`EveryCohort`, the order before issue 29), a 2 s request that joins three 30 s ones pays for all their
+boundary (`EveryCohort`, the order before shortest-first), a 2 s request that joins three 30 s ones pays for all their
 rows at each of its few steps, and its latency grows with the load beside it. Requests arrive with known sizes (their
 durations), so a boundary can run the short requests first (`ShortestFirst`): a cohort steps when its smallest
 request is at most `ratio` times the size (in steps) of the smallest one anywhere, or when it has been passed over

@@ -250,5 +250,7 @@ class RecipeEditingEngine(Protocol):
 class ComposingEngine(Protocol):
     """An engine that decodes codes it is given into a motion (the token families): edits of handles."""
 
+    limits: ModelLimits
+
     def compose(self, request: GenerationRequest, segment_codes: Sequence[np.ndarray]) -> Motion:
         ...

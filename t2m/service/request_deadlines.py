@@ -1,4 +1,4 @@
-"""Deadlines for receiving a request, which uvicorn lacks (issue 25): half-sent requests no longer hold connections.
+"""Deadlines for receiving a request, which uvicorn lacks: half-sent requests no longer hold connections.
 
 uvicorn times out only idle keep-alive connections, and only after a response: a client that opens a connection and
 sends part of its headers (or dribbles them a byte at a time, or declares a Content-Length it never sends) keeps the

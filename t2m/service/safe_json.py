@@ -1,4 +1,4 @@
-"""Client input echoed in an error body, made encodable as UTF-8 JSON whatever the client sent (issue 25).
+"""Client input echoed in an error body, made encodable as UTF-8 JSON whatever the client sent.
 
 A 422 echoes the offending input (pydantic's `input`, `loc` and `ctx`), and that input can be anything JSON or a
 non-JSON body decodes to: lone UTF-16 surrogates ("\\ud800" is valid JSON but no UTF-8), raw bytes that are no UTF-8

@@ -106,7 +106,7 @@ class Settings(BaseSettings):
                                     "requests lose to short ones.")
     request_timeout_s: float = Field(60.0, gt=0, description="A generation taking longer answers 504.")
     max_body_bytes: int = Field(64 * 1024, ge=1024, description="Larger request bodies answer 413.")
-    # uvicorn has no such deadlines: without them a half-sent request holds its connection for ever (issue 25)
+    # uvicorn has no such deadlines: without them a half-sent request holds its connection for ever
     header_timeout_s: float = Field(
         15.0, gt=0, description="A request's headers must be complete this long after the connection opened or the "
                                 "request's first byte; later: 408 and the connection closed (`t2m serve`).")

@@ -6,7 +6,7 @@ tests/data/default_model_outputs.npz: the T2M-HiFiGPT default, recorded again fo
 activations quantised per row: other codes);
 tests/data/masked_model_outputs.npz: the masked-family model, recorded again for its 0.2.1 (activations per row, as
 the default's).
-They hold the decoded motion, before the engine fits each segment to round(duration * fps) frames (issue 25: an
+They hold the decoded motion, before the engine fits each segment to round(duration * fps) frames (an
 engine with exact_durations=False answers it), so the recordings pin the model's codes and decode; the test fits them
 with the engine's own timeline. Re-record only when that model itself changes:
 

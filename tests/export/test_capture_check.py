@@ -1,5 +1,5 @@
 """capture_check's model of where onnxruntime's CUDA provider would copy between host and device (the copies that
-make `enable_cuda_graph` refuse a session). On an H100 (docs/measurements/gpu_suite_h100_2026-11-27.log) the
+make `enable_cuda_graph` refuse a session). On an H100 (docs/measurements/gpu_suite_h100_second_device_session.log) the
 fixed-cache GPT step was captured and MoMask's masked/residual graphs were refused; the checker must say the same
 of those graphs' shapes, and pass the masked family's graphs as exported now."""
 from __future__ import annotations

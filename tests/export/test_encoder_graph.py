@@ -1,4 +1,4 @@
-"""encoder.onnx (issue 27: uploaded motions): its codes are the PyTorch VQ's `encode`, in the decoder's layout, for
+"""encoder.onnx (uploaded motions): its codes are the PyTorch VQ's `encode`, in the decoder's layout, for
 every token family's tiny random bundle; the bundle lists it and passes its signature check; a bundle without one
 stays valid."""
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The hand-written phrasing sets that calibrate the unknown-text warning (t2m index-captions --phrasings): each
 sentence in one place only (known or unknown, calibration or held-out evaluation), none a probe's phrasing (the
 probes measure the model; a sentence in both would let one tune the other), and the merged-data set's known
-sentences a superset of the Bandai set's. The Bandai set predates the action probes (issue 28), one of which later
+sentences a superset of the Bandai set's. The Bandai set predates the action probes, one of which later
 took its "someone does a cartwheel"; it is checked against the kinematic probes only."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The hostile-input corpus (issue 25: no 5xx from any input): named requests exactly as they go on the wire.
+"""The hostile-input corpus (no 5xx from any input): named requests exactly as they go on the wire.
 
 A case is data: the bytes sent, how they are sent (in pieces, `gap_s` apart: a slow client), and what the answer
 must be beyond the rules every case obeys (tests/fuzz/hostile_check.py: an answer below 500; an error body that is

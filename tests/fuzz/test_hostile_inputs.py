@@ -1,4 +1,4 @@
-"""No 5xx from any input (issue 25): the hostile-input corpus against a real `t2m serve` on 127.0.0.1, half-sent
+"""No 5xx from any input: the hostile-input corpus against a real `t2m serve` on 127.0.0.1, half-sent
 connections by the thousand, and the control showing that the corpus catches a handler that echoes raw input.
 
 The server serves the embedded default model with the corpus's settings (hostile_corpus.SERVER_ENV: an API key,
@@ -123,7 +123,7 @@ def test_half_sent_connections_are_closed_within_the_deadline(server, capsys):
 
 
 def _echo_handler(request, error: RequestValidationError) -> JSONResponse:
-    """The 422 handler before issue 25: the input echoed as it came (only NaN made safe)."""
+    """The 422 handler before safe echoes: the input echoed as it came (only NaN made safe)."""
     def nan_safe(value):
         if isinstance(value, float) and not math.isfinite(value):
             return str(value)

@@ -88,7 +88,7 @@ def test_items_without_a_label_are_grouped_by_their_sentences(sentences, action)
 
 
 def test_a_few_new_jumps_are_lifted_beside_many_walks():
-    """Merged Bandai-Namco + CMU ids (issue 28): the CMU jumps form their own action, so balancing lifts them; without
+    """Merged Bandai-Namco + CMU ids: the CMU jumps form their own action, so balancing lifts them; without
     their sentences they would sink into one OTHER group with every CMU clip."""
     ids = [f"bn-dataset-2_walk_active_{i:03d}" for i in range(300)] + [f"cmu-0{i}_01_000000" for i in range(4)] + \
         [f"cmu-1{i}_02_000000" for i in range(6)]

@@ -1,4 +1,4 @@
-"""The opt-in model trained on Bandai-Namco and the CMU trials (t2m/bundles/both, issue 28): a verified bundle that
+"""The opt-in model trained on Bandai-Namco and the CMU trials (t2m/bundles/both): a verified bundle that
 shares the default's text files but has its own caption index, knows the CMU actions the default warns about, and
 jumps when asked (the action probe written before it was trained; 0.80 on seeds 0-4 as measured, 0.00 for the
 default). Its kick regression, the reason it is not the default, is pinned too."""
@@ -53,6 +53,6 @@ def test_it_jumps_when_asked(both_engine):
 
 @pytest.mark.xfail(strict=True, reason="the reason it is not the default: kick 0.37 (the default: 0.97); 'kicks a "
                    "ball hard' and 'kicks forward with one foot' 0/5 "
-                   "(docs/measurements/issue28_before_after_2026-11-26.log)")
+                   "(docs/measurements/cmu_actions_model_before_after.log)")
 def test_it_kicks_like_the_default(both_engine):
     assert _pass_rate(both_engine, "kick") >= 0.6

@@ -2,7 +2,7 @@
 its steps call them through GraphedSession. Here on the CPU provider (the same buffers, no capture; onnxruntime's
 CPU provider ignores graph ids), which is how their numbers are checked: a seed gives the plain engine's motion.
 On an H100 the same graphs were captured and gave the plain calls' codes (docs/measurements/
-gpu_suite_h100_2026-11-27.log)."""
+gpu_suite_h100_second_device_session.log)."""
 from __future__ import annotations
 
 import dataclasses

@@ -97,7 +97,7 @@ def test_scale_compose_and_nginx():
     assert limit and int(limit.group(1)) * 1024 == Settings().max_body_bytes
     read_timeout = int(re.search(r"proxy_read_timeout (\d+)s;", conf).group(1))
     assert read_timeout > Settings().request_timeout_s
-    # nginx drops a half-sent request no later than a replica would (issue 25)
+    # nginx drops a half-sent request no later than a replica would
     header_timeout = int(re.search(r"client_header_timeout (\d+)s;", conf).group(1))
     body_timeout = int(re.search(r"client_body_timeout (\d+)s;", conf).group(1))
     assert header_timeout <= Settings().header_timeout_s and body_timeout <= Settings().body_timeout_s

@@ -1,4 +1,4 @@
-"""POST /edit and answers' handles (issue 27, first step): the handle's format and its checks as untrusted input,
+"""POST /edit and answers' handles: the handle's format and its checks as untrusted input,
 what an edit keeps (the rule of docs/api.md, checked on arrays), determinism, and the 422s of families that cannot.
 
 The rule: the answer's frames before the edited span are the handle's motion's bit for bit, up to the frames whose

@@ -1,4 +1,4 @@
-"""POST /edit with a motion the user brings (issue 27): JSON joints or a BVH file the service wrote, encoded by the
+"""POST /edit with a motion the user brings: JSON joints or a BVH file the service wrote, encoded by the
 bundle's encoder.onnx and edited as a handle's codes (tiny random bundles of the three token families, over HTTP).
 
 What is guaranteed: the upload comes back as the decoding of its codes, the codes being encoder.onnx's of the

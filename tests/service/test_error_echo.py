@@ -1,4 +1,4 @@
-"""Error answers echo what the client sent as valid UTF-8 JSON, whatever it sent (issue 25: a lone surrogate in a text
+"""Error answers echo what the client sent as valid UTF-8 JSON, whatever it sent (a lone surrogate in a text
 was a 500). The hostile-input corpus against a real server is tests/fuzz/test_hostile_inputs.py (slow suite)."""
 from __future__ import annotations
 

@@ -4,12 +4,12 @@ The GPT model's recording (tests/data/gpt_model_outputs.npz, by tests/data/recor
 code as it was before the package moved under t2m/; on the recording machine the joints came out bit-identical
 after it (sha256 in CHANGELOG.md). The default T2M-HiFiGPT model's (tests/data/default_model_outputs.npz) was
 recorded when it became the default; the masked model's (tests/data/masked_model_outputs.npz) before the
-family seam (issue 24) was built. Across CPUs onnxruntime may differ in the last float bits, hence the tolerance;
+family seam was built. Across CPUs onnxruntime may differ in the last float bits, hence the tolerance;
 segment spans (token counts, End decisions) must match exactly.
 
-Since issue 25 a segment of d seconds answers exactly round(d * fps) frames: the engine fits each segment's decoded
-frames to that count (engine/timeline.py). The recordings were not re-recorded for it, on purpose: they hold the
-decoded motion, and the test checks both sides of the fit separately. (a) The decoded motion (an engine with
+Since exact durations, a segment of d seconds answers exactly round(d * fps) frames: the engine fits each segment's
+decoded frames to that count (engine/timeline.py). The recordings were not re-recorded for it, on purpose: they hold
+the decoded motion, and the test checks both sides of the fit separately. (a) The decoded motion (an engine with
 exact_durations=False) is the recording, spans included: the model's codes, its End / stop decisions and the single
 decode did not change. (b) The served motion is the recording fitted by the engine's own timeline (fit_frames), and
 its spans are the exact ones: 3 + 2 + 2 s gives (0, 60), (60, 100), (100, 140) on every model, where the default

@@ -1,4 +1,4 @@
-"""Issue 24's proof of the family seam: a fourth family defined in tests/service/tiny_family.py (nothing under t2m/
+"""The proof of the family seam: a fourth family defined in tests/service/tiny_family.py (nothing under t2m/
 edited or naming it) is registered, exported with `t2m export --family fourth`, loaded and served over HTTP: a
 3-sentence stream, whole and streamed, with the same seeds giving the same motion."""
 from __future__ import annotations

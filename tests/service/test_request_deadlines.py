@@ -1,4 +1,4 @@
-"""Half-sent requests are answered 408 and closed within their deadline (issue 25), on a real uvicorn with the
+"""Half-sent requests are answered 408 and closed within their deadline, on a real uvicorn with the
 service's protocol (service/request_deadlines.py); plain uvicorn keeps them open. Short deadlines keep this fast; the
 same against a `t2m serve` process with many connections is in tests/fuzz/test_hostile_inputs.py (slow suite)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A fourth model family written entirely inside the test suite, to prove the family seam (issue 24).
+"""A fourth model family written entirely inside the test suite, to prove the family seam.
 
 Recipe ("fourth"): one graph scores every code of a segment at once from its text feature (no autoregression, no
 masking), the service draws each code from the guided logits with the request's generator, and a decoder turns

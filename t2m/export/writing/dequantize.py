@@ -3,7 +3,8 @@ dequantised weights, every int8 embedding table read through Gather + Dequantize
 
 Why: the shipped bundles' step graphs are int8-dynamic, the fastest rule on CPUs, but onnxruntime's CUDA provider
 has no DynamicQuantizeLinear kernel, so each quantised MatMul goes to the CPU and back (measured on an H100: the
-default model's int8 steps ran 2x slower than PyTorch at batch 256; docs/measurements/gpu_suite_h100_2026-11-26.log).
+default model's int8 steps ran 2x slower than PyTorch at batch 256;
+docs/measurements/gpu_suite_h100_first_device_session.log).
 The float weights are the int8 ones dequantised, ``(w - zero_point) * scale``, so the model is the shipped one minus
 the activation rounding; ``t2m quantize --scheme float32|fp16`` writes such a copy for GPUs and measures it.
 """

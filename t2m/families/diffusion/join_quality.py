@@ -1,4 +1,4 @@
-"""MDM's joins (issue 26): the pelvis-velocity change at the joins of 3-sentence requests with and without the
+"""MDM's joins: the pelvis-velocity change at the joins of 3-sentence requests with and without the
 in-between pass (t2m.families.diffusion.loop.join_windows), with t2m/quality/joins.py's measure.
 
     t2m eval diffusion-joins [--bundle DIR] [--seeds 20]

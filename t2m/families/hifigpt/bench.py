@@ -1,4 +1,4 @@
-"""T2M-HiFiGPT vs the 1-layer GPT at equal width and depth: ms per generated step and per 10 s motion (issue 16).
+"""T2M-HiFiGPT vs the 1-layer GPT at equal width and depth: ms per generated step and per 10 s motion.
 
 Random weights, onnxruntime, the service's own loops and graphs (t2m.families.gpt.loop over gpt_step.onnx;
 t2m.families.hifigpt.loop over temporal_step.onnx + residual_step.onnx), guidance on (cond + null rows, batch 2), a 10 s

@@ -10,7 +10,7 @@ The action is the content label in the item id (``dataset-1_walk-back_happy_003`
 swapped, pieces ``..._p1``; a merged dataset's source prefix, ``bn-`` / ``Mbn-``, is skipped). An item without one
 (the captioned CMU trials, HumanML3D) takes the first action its sentences name (`SENTENCE_ACTIONS`: jump, cartwheel,
 dance, kick, get-up, run, walk, ...), so that a few minutes of jumps are one group beside Bandai-Namco's hours of
-walks instead of vanishing into one "other" group with every CMU clip (issue 28); sentences naming none of them, or
+walks instead of vanishing into one "other" group with every CMU clip; sentences naming none of them, or
 no sentences, leave it in OTHER.
 """
 from __future__ import annotations

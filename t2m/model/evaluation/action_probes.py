@@ -1,4 +1,4 @@
-"""Probes for the actions the captioned CMU trials add (issue 28): jump, invert (cartwheel, handstand, flip), get up.
+"""Probes for the actions the captioned CMU trials add: jump, invert (cartwheel, handstand, flip), get up.
 
 Written before any model was trained on those trials, so that the model that learns them is measured by rules it
 could not have been tuned to. Like t2m.model.evaluation.probes, each checks one physically obvious consequence of

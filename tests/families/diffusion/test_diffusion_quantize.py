@@ -1,4 +1,4 @@
-"""Quantising the diffusion family's denoiser (issue 29, "fast imports ... and the diffusion importers"):
+"""Quantising the diffusion family's denoiser:
 `t2m quantize` on MDM and DiP bundles and `t2m import mdm|dip --quantize`. The denoiser really changes (MatMulInteger,
 MatMulNBits, float16 weights), the manifest (`quantization.denoiser`) and the card say so, and the parity says what
 a diffusion model can: no tokens, the largest x0 difference on the float32 trajectory and how far the served joints

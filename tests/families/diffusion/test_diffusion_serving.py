@@ -1,4 +1,4 @@
-"""The diffusion family served (issue 26, item 5): tiny random MDM and DiP bundles over HTTP (3-sentence requests with
+"""The diffusion family served: tiny random MDM and DiP bundles over HTTP (3-sentence requests with
 exact spans, seeds, streams, formats, 422s naming the field), the ONNX denoiser against the PyTorch module inside a
 served sampling run with injected noise, determinism under batching, MDM's join windows and DiP's early frames."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`t2m train dip` (issue 26, item 6) at tiny sizes: the loss falls, a resumed run repeats the uninterrupted one's
+"""`t2m train dip` at tiny sizes: the loss falls, a resumed run repeats the uninterrupted one's
 losses exactly, the exported bundle serves a request through the engine, and the export takes the EMA weights."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""POST /edit on the diffusion family (issue 27): a diffusion answer's handle is a recipe (service/recipes.py) that
+"""POST /edit on the diffusion family: a diffusion answer's handle is a recipe (service/recipes.py) that
 makes its frames again bit for bit; in_between and body_part edits are made by the loop's inpainting on the tiny
 random MDM and DiP bundles (service/diffusion_edits.py).
 

@@ -1,4 +1,4 @@
-"""POST /edit on the masked family (issue 27): an edit's tokens are masked and filled by the family's own re-masking
+"""POST /edit on the masked family: an edit's tokens are masked and filled by the family's own re-masking
 loop with the kept tokens on both sides as context, then the residual stage, then one decode of the whole motion.
 
 Checked on arrays with a tiny random 2D (joint-token) bundle: the kept segments' codes come back as they were, the
