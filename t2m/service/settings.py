@@ -85,7 +85,8 @@ class Settings(BaseSettings):
                                 "continuous batching each has a helper thread for the text and decoder work of "
                                 "requests that join or leave while it steps).")
     max_queue: int = Field(16, ge=1, description="Requests allowed to wait for a worker; one more gets 429.")
-    max_batch_rows: int = Field(64, ge=1, description="GPT rows (segments x cond/uncond) merged into one batch.")
+    max_batch_rows: int = Field(64, ge=1, description="Rows a batch of any family holds (segments, x2 with guidance: "
+                                "conditioned and null); a diffusion edit takes a whole batch.")
     batch_window_ms: float = Field(5.0, ge=0, description="How long a batch waits for more requests to join it (with "
                                                           "continuous batching: how long a request waits before "
                                                           "joining a running batch, so that simultaneous ones start "
@@ -117,7 +118,8 @@ class Settings(BaseSettings):
         10, ge=1, le=600, description="An idle kept-alive connection is closed after this long (`t2m serve`); longer "
                                         "than common clients keep theirs (httpx: 5 s), so that a client never sends "
                                         "on a connection the server is closing at that moment.")
-    api_key: SecretStr | None = Field(None, description="If set, POST /generate needs 'Authorization: Bearer <key>'.")
+    api_key: SecretStr | None = Field(None, description="If set, POST /generate and POST /edit need 'Authorization: "
+                                                                "Bearer <key>'.")
     cors_origins: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="Allowed CORS origins, comma-separated in the env ('*' = any).")
     retry_after_s: int = Field(1, ge=1, description="Retry-After seconds sent with 429 and 503 answers.")

@@ -4,15 +4,12 @@ from __future__ import annotations
 import json
 import shutil
 import socket
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))   # tests/service/fakes.py
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_MODEL = REPO / "t2m" / "bundles" / "default"      # T2M-HiFiGPT after 0.4.0

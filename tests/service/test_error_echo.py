@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 
 import pytest
-from fakes import FakeEngine
 from fastapi import HTTPException
 
 from t2m.service.safe_json import MAX_ECHO_DEPTH, TOO_DEEP, json_safe
 from t2m.service.settings import Settings
 from tests.fuzz.hostile_check import strict_json  # UTF-8 JSON read strictly: no escaped lone surrogate either
+from tests.service.fakes import FakeEngine
 
 JSON = {"content-type": "application/json"}
 

@@ -23,17 +23,14 @@ recordings; a change of the service's code matches none of them.
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "data"))
-from record_model_outputs import CASES, record
-
 from t2m.runtime.timeline import fit_frames
 from t2m.runtime.types import frames_for_duration
+from tests.data.record_model_outputs import CASES, record
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 EXACT_SPANS = {"walk_3s_g3": [[0, 60]], "stream_g3": [[0, 60], [60, 100], [100, 140]]}

@@ -4,9 +4,8 @@ from __future__ import annotations
 import threading
 import time
 
-from fakes import FakeEngine
-
 from t2m.service.settings import Settings
+from tests.service.fakes import FakeEngine
 
 BODY = {"segments": [{"text": "a person walks", "duration": 1.0}], "seed": 1}
 

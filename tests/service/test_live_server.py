@@ -9,7 +9,6 @@ import time
 import httpx
 import numpy as np
 import pytest
-from fakes import FakeEngine, StreamingFakeEngine
 
 from t2m.client import (
     AsyncT2MClient,
@@ -25,6 +24,7 @@ from t2m.client import (
     ValidationError,
 )
 from tests.service.conftest import LiveServer, free_port
+from tests.service.fakes import FakeEngine, StreamingFakeEngine
 
 KEY = {"Authorization": "Bearer test-key"}
 SEGMENTS = [("a person walks forward", 3.0), ("a person waves with the right hand", 2.0)]

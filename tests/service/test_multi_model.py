@@ -9,9 +9,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from fakes import FAKE_LIMITS, FakeEngine
 
 from t2m.service.settings import Settings
+from tests.service.fakes import FAKE_LIMITS, FakeEngine
 
 A, B = "t2m-random-test", "t2m-random-b"           # tests/service/conftest.py: random_bundle, second_bundle
 BODY = {"segments": [{"text": "a person walks forward", "duration": 3.0},

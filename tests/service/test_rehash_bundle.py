@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
 
+from scripts.rehash_bundle import main, rehash
+
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "scripts"))
-from rehash_bundle import main, rehash  # noqa: E402
 
 
 def test_an_edited_card_verifies_again_after_rehash(random_bundle, tmp_path):

@@ -9,12 +9,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 import pytest
-from fakes import FakeEngine
 
 from t2m.service.request_deadlines import deadline_protocol
 from t2m.service.settings import Settings
 from tests.raw_http import exchange, split
 from tests.service.conftest import LiveServer
+from tests.service.fakes import FakeEngine
 
 HEADER_S, BODY_S = 0.5, 0.8
 SLACK_S = 0.5   # a busy 2-core machine: the close may come this much after the deadline

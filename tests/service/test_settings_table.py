@@ -4,16 +4,14 @@ description, and the table has no row the code lacks."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import pytest
 
+from scripts import settings_table
 from t2m.service.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "scripts"))
-import settings_table  # noqa: E402
 
 
 def committed_table() -> str:

@@ -11,10 +11,10 @@ import time
 import httpx
 import numpy as np
 import pytest
-from fakes import FAKE_LIMITS, StreamingFakeEngine
 
 from t2m.service.settings import Settings
 from tests.service.conftest import LiveServer, wait_ready
+from tests.service.fakes import FAKE_LIMITS, StreamingFakeEngine
 
 WALK = {"segments": [{"text": "a person walks forward", "duration": 10.0}], "seed": 4}
 TWO_FREE = {"segments": [{"text": "a person walks", "duration": None}, {"text": "a person waves", "duration": None}],

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +10,6 @@ import pytest
 
 from t2m.bundle import BundleError, CaptionIndex
 from t2m.runtime.types import GenerationRequest, RequestLimitError, SegmentRequest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "model"))
 
 
 def _tiny_phrasings(folder: Path) -> Path:
@@ -134,11 +131,10 @@ def test_bundle_without_index_says_so(random_bundle):
 
 
 def test_index_captions_command_writes_a_verified_indexed_bundle(random_bundle, tmp_path, capsys):
-    from synthetic_motion_data import make_dataset
-
     from t2m.cli.main import main
     from t2m.export.writing.verify import verify_bundle
     from t2m.runtime.engine import OnnxEngine
+    from tests.model.synthetic_motion_data import make_dataset
 
     bundle = tmp_path / "bundle"
     shutil.copytree(random_bundle, bundle)
@@ -168,13 +164,12 @@ def _wait(client) -> None:
 def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp_path, capsys):
     """A DiP bundle's text graph gives token states: the index holds each caption's real tokens averaged, the very
     feature its requests are checked with, so a training caption is found at similarity ~1 and warns of nothing."""
-    from synthetic_motion_data import make_dataset
-
     from t2m.cli.main import main
     from t2m.export.writing.index_captions import encode_with_bundle, training_captions
     from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
     from t2m.families.diffusion.served import encode_token_states, pooled_token_states
     from t2m.runtime.engine import OnnxEngine
+    from tests.model.synthetic_motion_data import make_dataset
 
     bundle = tmp_path / "dip"
     build_random_diffusion_bundle(bundle, arch="dip", seed=1)

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import pytest
-from fakes import FakeEngine
 
 from t2m.api.schemas import GenerateRequest, to_generation_request
 from t2m.runtime.types import frames_for_duration, tokens_for_duration
 from t2m.service.settings import Settings
+from tests.service.fakes import FakeEngine
 
 OK = {"text": "a person walks forward", "duration": 3.0}
 
@@ -108,7 +108,7 @@ def test_frame_formula(duration, decoded, frames):
 
 
 def test_defaults_come_from_the_model():
-    from fakes import FAKE_LIMITS
+    from tests.service.fakes import FAKE_LIMITS
 
     request = GenerateRequest.model_validate({"segments": [OK]})
     assert request.format == "json" and request.temperature == 1.0 and request.top_k is None
