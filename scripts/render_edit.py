@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(REPO / "docs" / "images" / "edit.png"), help="the PNG to write")
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args(argv)
-    from t2m.api.schemas import RegenerateEdit
+    from t2m.api import RegenerateEdit
     from t2m.runtime.edit_runner import edit_with_engine
     from t2m.runtime.handles import make_handle
     from t2m.runtime.types import GenerationRequest, SegmentRequest

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.api.schemas import RegenerateEdit
+from t2m.api import RegenerateEdit
 from t2m.bundles import EMBEDDED_BUNDLES
 from t2m.runtime.edit_runner import edit_with_engine
 from t2m.runtime.engine import OnnxEngine

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from t2m.api.schemas import InBetweenEdit, RegenerateEdit
+from t2m.api import InBetweenEdit, RegenerateEdit
 from t2m.bundles import EMBEDDED_BUNDLES
 from t2m.model.evaluation.foot_skating import foot_skating
 from t2m.model.evaluation.probes import join_smoothness, probe_by_name

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.api.schemas import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
+from t2m.api import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
 from t2m.runtime.edit_context import inpaint_map
 from t2m.runtime.handles import MotionHandle, make_handle, read_handle, segment_seed
 from t2m.runtime.limits import MAX_SEGMENTS, MAX_TOTAL_S

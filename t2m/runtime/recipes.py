@@ -31,7 +31,7 @@ from typing import Any
 
 from pydantic import TypeAdapter, ValidationError
 
-from t2m.api.schemas import Edit
+from t2m.api import Edit
 from t2m.runtime.handle_format import CHECKSUM_BYTES, HandleError, model_seed_guidance, no_constant, unpack_handle
 from t2m.runtime.limits import MAX_DURATION_S, MAX_SEGMENTS, MAX_TEXT_CHARS, MAX_TOTAL_S, MIN_DURATION_S
 from t2m.runtime.types import GenerationRequest, ModelLimits, SegmentRequest, frames_for_duration

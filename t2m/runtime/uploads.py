@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from t2m.api.schemas import UploadedMotion
+from t2m.api import UploadedMotion
 from t2m.motion.bvh import BvhError, read_bvh
 from t2m.motion.bvh_export import CM_PER_METRE, bvh_joint_names
 from t2m.motion.features import joints_to_features, normalize_joints

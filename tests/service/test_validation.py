@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from t2m.api.schemas import GenerateRequest, to_generation_request
+from t2m.api import GenerateRequest, to_generation_request
 from t2m.runtime.types import frames_for_duration, tokens_for_duration
 from t2m.service.settings import Settings
 from tests.service.fakes import FakeEngine

@@ -87,7 +87,7 @@ def _source(path: Path) -> dict[str, Any]:
 def _edit(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from t2m.api.schemas import EditRequest
+    from t2m.api import EditRequest
     from t2m.cli.commands.generate import one_line
     from t2m.cli.main import CliError
 

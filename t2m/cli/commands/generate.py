@@ -91,7 +91,7 @@ def one_line(errors: Sequence[Mapping[str, Any]]) -> str:
 def _generate(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from t2m.api.schemas import GenerateRequest, model_limit_errors, to_generation_request
+    from t2m.api import GenerateRequest, model_limit_errors, to_generation_request
     from t2m.cli.main import CliError
 
     fmt = FORMATS.get(args.output.suffix.lower())

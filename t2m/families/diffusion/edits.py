@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from t2m.api.schemas import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
+from t2m.api import BodyPartEdit, ContinueEdit, InBetweenEdit, RegenerateEdit
 from t2m.runtime.edit_context import context_sides
 from t2m.runtime.editing import AnyEdit, EditError, EditResult, check_edit_kind
 from t2m.runtime.handles import HandleError, segment_seed

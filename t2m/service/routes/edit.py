@@ -13,7 +13,7 @@ from fastapi import APIRouter, Depends, Response
 from fastapi.exceptions import RequestValidationError
 from starlette.concurrency import run_in_threadpool
 
-from t2m.api.schemas import EditRequest, EditResponse, unknown_model_error
+from t2m.api import EditRequest, EditResponse, unknown_model_error
 from t2m.runtime.editing import EditError, EditPlan, finish_edit, plan_edit
 from t2m.runtime.formats import STREAM_MEDIA_TYPE
 from t2m.runtime.handles import HandleError, handle_model, read_handle

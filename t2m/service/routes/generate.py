@@ -13,7 +13,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from t2m.api.schemas import (
+from t2m.api import (
     ErrorResponse,
     GenerateRequest,
     MotionResponse,

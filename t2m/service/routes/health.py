@@ -4,7 +4,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
 
-from t2m.api.schemas import HealthResponse, ModelDetails, request_limits
+from t2m.api import HealthResponse, ModelDetails, request_limits
 from t2m.runtime.served_models import ServedModel
 from t2m.service.dependencies import ServiceState, get_state
 from t2m.service.settings import Settings

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import torch
 
-from t2m.api.schemas import EditRequest
+from t2m.api import EditRequest
 from t2m.families.diffusion.edits import edit_recipe, replay
 from t2m.families.diffusion.loop import numbered_join_windows
 from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle

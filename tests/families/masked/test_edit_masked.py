@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from t2m.api.schemas import EditRequest
+from t2m.api import EditRequest
 from t2m.runtime.editing import EditError, edit_in_process, plan_edit
 from t2m.runtime.engine import OnnxEngine
 from t2m.runtime.handles import make_handle, read_handle, segment_seed
