@@ -73,11 +73,6 @@ FAMILY_CROSSINGS: set[tuple[str, str]] = {
     ("export/kit/text_sources.py", "t2m.families.diffusion.text_encoders"),
     ("export/writing/bundle_parity.py", "t2m.families.gpt.served"),
     ("export/writing/index_captions.py", "t2m.families.diffusion.served"),
-    ("model/evaluation/evaluate.py", "t2m.families.gpt.evaluation"),
-    ("model/evaluation/evaluate.py", "t2m.families.hifigpt.evaluation"),
-    ("model/evaluation/evaluate.py", "t2m.families.masked.evaluation"),
-    ("model/training/checkpoint.py", "t2m.families.gpt.network"),
-    ("model/training/token_models.py", "t2m.families.gpt.training"),
 }
 
 

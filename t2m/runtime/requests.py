@@ -6,9 +6,15 @@ may ask of a model is the same for all: a duration becomes round(duration * fps 
 must lie within the codebook. Errors are RequestLimitErrors naming the field (a 422 over HTTP)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+from t2m.decoding.lockstep import SamplingJob
 from t2m.runtime.types import GenerationRequest, ModelLimits, RequestLimitError, tokens_for_duration
 
-__all__ = ["check_top_k", "segment_steps"]
+if TYPE_CHECKING:
+    from t2m.runtime.text import TextEncoder
+
+__all__ = ["check_top_k", "lockstep_job", "segment_steps"]
 
 
 def segment_steps(request: GenerationRequest, limits: ModelLimits, *, free: str | None = None) -> list[int | None]:
@@ -33,3 +39,14 @@ def check_top_k(request: GenerationRequest, limits: ModelLimits) -> None:
     """top_k, when given, is 1..codebook_size."""
     if request.top_k is not None and not 1 <= request.top_k <= limits.codebook_size:
         raise RequestLimitError("top_k", f"must be 1..{limits.codebook_size}, got {request.top_k}")
+
+
+def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
+    """A request as a job of the lockstep loops (the GPT's, T2M-HiFiGPT's): a target per segment from its duration
+    (None = free length), checked against max_tokens and top_k against the codebook, naming the field."""
+    targets = segment_steps(request, limits)
+    check_top_k(request, limits)
+    conds = text.encode([s.text for s in request.segments])
+    return SamplingJob.of(conds, targets, max_tokens=limits.max_tokens, guidance=request.guidance,
+                          temperature=request.temperature, top_k=request.top_k, rng=request.seed,
+                          cancelled=lambda: request.cancelled)

@@ -10,10 +10,11 @@ import pytest
 import torch
 
 from t2m.families.gpt.network import GPTConfig, MotionGPT
-from t2m.families.gpt.training import corrupt_codes, drop_condition, drop_length, perturb_condition, sample_tau
+from t2m.families.gpt.training import corrupt_codes, drop_length, sample_tau
 from t2m.model.data.datasets import TextMotionDataset, VQWindowDataset, open_split, precompute_codes
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 from t2m.model.training.checkpoint import load_model, save_checkpoint
+from t2m.model.training.conditioning import drop_condition, perturb_condition
 from t2m.model.training.loop import LoopSettings, infinite, lr_factor, run_training
 
 torch.set_num_threads(1)

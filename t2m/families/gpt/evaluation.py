@@ -10,6 +10,7 @@ import torch
 
 if TYPE_CHECKING:
     from t2m.families.gpt.network import MotionGPT
+    from t2m.model.evaluation.evaluate import Models
 
 
 class GptFamily:
@@ -44,11 +45,23 @@ class GptFamily:
 
 def load_gpt_family(gpt_run: str | Path, codebook_size: int, vq_run: str | Path) -> GptFamily:
     """The GPT run, checked against the VQ's codebook."""
+    from t2m.families.gpt.network import MotionGPT
     from t2m.model.training.checkpoint import load_model, read_run_config
 
     gpt = load_model(gpt_run, expect_kind="gpt")
+    assert isinstance(gpt, MotionGPT)
     if gpt.config.codebook_size != codebook_size:
         raise ValueError(f"{gpt_run}: GPT codebook_size {gpt.config.codebook_size} does not match the VQ's "
                          f"nb_code {codebook_size} ({vq_run})")
     text = read_run_config(gpt_run).get("data", {}).get("text_encoder", "minilm")
     return GptFamily(gpt, str(text.get("kind", "minilm") if isinstance(text, dict) else text), str(gpt_run))
+
+
+def load_gpt_models(evaluator_run: str | Path, vq_run: str | Path, gpt_run: str | Path, data_mean: np.ndarray,
+                data_std: np.ndarray) -> Models:
+    """The GPT family: evaluator, a 1D VQ and a GPT over its codes."""
+    from t2m.model.evaluation.evaluate import code_family_models, load_evaluator_and_vq
+
+    evaluator, vq, mean, std = load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
+    family = load_gpt_family(gpt_run, vq.config.nb_code, vq_run)
+    return code_family_models(evaluator, vq, family, mean, std, evaluator_run, vq_run)

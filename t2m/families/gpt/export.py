@@ -264,6 +264,7 @@ def export_from_runs(
         notes += "\n" + Path(model_card).read_text(encoding="utf-8")
     vq = load_model(vq_run, expect_kind="vq")
     gpt = load_model(gpt_run, expect_kind="gpt")
+    assert isinstance(gpt, MotionGPT)
     if text_source is None:  # built last: loading a text encoder is the slow part
         text_source = (clip_text_source(clip_weights) if kind == "clip" and clip_weights is not None
                        else minilm_text_source())

@@ -63,6 +63,8 @@ class GptFamily(ModelFamily):
     capabilities = Capabilities(continuous_batching=True, early_frames=True, edits=SEGMENT_EDITS)
     training_kinds: ClassVar[Mapping[str, tuple[str, str]]] = {
         "gpt": ("t2m.families.gpt.training", "train the text-to-code GPT on a trained VQ's codes")}
+    checkpoint_kinds: ClassVar[Mapping[str, tuple[str, str, str]]] = {
+        "gpt": ("t2m.families.gpt.network", "MotionGPT", "GPTConfig")}
     eval_run_option = "gpt"
     evaluates_bundle = True
     export_needs_vq = True
@@ -170,9 +172,9 @@ class GptFamily(ModelFamily):
         return manifest, {"parity": checks.parity, "int8": checks.int8}
 
     def load_eval_models(self, args: argparse.Namespace, mean: Any, std: Any) -> Any:
-        from t2m.model.evaluation.evaluate import load_models
+        from t2m.families.gpt.evaluation import load_gpt_models
 
-        return load_models(args.evaluator, args.vq, args.gpt, mean, std)
+        return load_gpt_models(args.evaluator, args.vq, args.gpt, mean, std)
 
 
 FAMILY = GptFamily()

@@ -12,22 +12,11 @@ from t2m.runtime.bound_step import BoundGptStep
 from t2m.runtime.bundle_loader import Bundle
 from t2m.runtime.graphed_step import FixedCacheGptStep
 from t2m.runtime.onnx_step import OnnxGptStep
-from t2m.runtime.requests import check_top_k, segment_steps
+from t2m.runtime.requests import lockstep_job
 from t2m.runtime.text import TextEncoder
 from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 
-__all__ = ["GptCodes", "lockstep_job"]
-
-
-def lockstep_job(request: GenerationRequest, text: TextEncoder, limits: ModelLimits) -> SamplingJob:
-    """A request as a job of the lockstep loops (the GPT's, T2M-HiFiGPT's): a target per segment from its duration
-    (None = free length), checked against max_tokens and top_k against the codebook, naming the field."""
-    targets = segment_steps(request, limits)
-    check_top_k(request, limits)
-    conds = text.encode([s.text for s in request.segments])
-    return SamplingJob.of(conds, targets, max_tokens=limits.max_tokens, guidance=request.guidance,
-                          temperature=request.temperature, top_k=request.top_k, rng=request.seed,
-                          cancelled=lambda: request.cancelled)
+__all__ = ["GptCodes"]
 
 
 class GptCodes:

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from t2m.model.data.balancing import BALANCE_POWER_HELP
+from t2m.model.training.conditioning import drop_condition, encoder_max_length, perturb_condition, text_features_dim
 
 if TYPE_CHECKING:  # torch is imported inside the functions: `t2m --help` must not pay for it
     import torch
@@ -46,27 +47,6 @@ def corrupt_codes(
     replace = (torch.rand(tokens.shape, generator=generator) < tau) & is_code
     random_codes = torch.randint(0, codebook_size, tokens.shape, generator=generator)
     return torch.where(replace, random_codes, tokens)
-
-
-def perturb_condition(cond: torch.Tensor, max_noise: float, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Add isotropic noise of relative size U[0, max_noise] per row, keeping each row's norm (null rows stay zero)."""
-    import torch
-
-    if max_noise == 0:
-        return cond
-    norm = cond.norm(dim=-1, keepdim=True)
-    scale = torch.rand(cond.shape[0], 1, generator=generator) * max_noise
-    noise = torch.randn(cond.shape, generator=generator) * norm * scale / cond.shape[-1] ** 0.5
-    noisy = cond + noise
-    return noisy * norm / noisy.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-
-
-def drop_condition(cond: torch.Tensor, p: float, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Zero each row's text feature with probability p (the null condition)."""
-    import torch
-
-    keep = torch.rand(cond.shape[0], generator=generator) >= p
-    return cond * keep[:, None].to(cond.dtype)
 
 
 def drop_length(length: torch.Tensor, keep: float, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -255,18 +235,6 @@ def main(args: argparse.Namespace) -> int:
         data_info=data_info, resume=args.resume, name="gpt",
     )
     return 0
-
-
-def text_features_dim(features: dict[str, np.ndarray]) -> int:
-    if not features:
-        raise ValueError("no caption features: the dataset has no captions")
-    return int(next(iter(features.values())).shape[-1])
-
-
-def encoder_max_length(name: str) -> int:
-    from t2m.model.networks.text_encoders import MINILM_MAX_LENGTH
-
-    return MINILM_MAX_LENGTH if name == "minilm" else 77
 
 
 def load_model_config_down_t(vq_run: str | Path) -> int:

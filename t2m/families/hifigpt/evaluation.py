@@ -10,6 +10,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from t2m.families.hifigpt.network import HiFiGPT
+    from t2m.model.evaluation.evaluate import Models
     from t2m.model.networks.vqvae import MotionVQVAE
 
 
@@ -47,10 +48,21 @@ class HiFiGPTFamily:
 def load_hifigpt_family(hifigpt_run: str | Path, vq: MotionVQVAE, vq_run: str | Path) -> HiFiGPTFamily:
     """The HiFiGPT run, checked against the VQ (codebook, depth, code_dim) and the VQ it was trained on."""
     from t2m.families.hifigpt.network import HiFiGPT, check_fits_vq
-    from t2m.families.masked.evaluation import load_run, text_kind
-    from t2m.model.training.checkpoint import check_trained_on
+    from t2m.model.training.checkpoint import check_trained_on, load_run, text_kind
 
     model = load_run(hifigpt_run, "hifigpt", HiFiGPT)
     check_trained_on(hifigpt_run, vq_run)
     check_fits_vq(model.config, vq.config.to_dict(), (f"{hifigpt_run}: the HiFiGPT", f"the VQ {vq_run}"))
     return HiFiGPTFamily(model, text_kind(hifigpt_run), str(hifigpt_run))
+
+
+def load_hifigpt_models(evaluator_run: str | Path, vq_run: str | Path, hifigpt_run: str | Path,
+                        data_mean: np.ndarray, data_std: np.ndarray) -> Models:
+    """T2M-HiFiGPT: evaluator, a residual 1D VQ and the double-tier GPT over its code maps."""
+    from t2m.model.evaluation.evaluate import code_family_models, load_evaluator_and_vq
+    from t2m.model.networks.vqvae import MotionVQVAE
+
+    evaluator, vq, mean, std = load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
+    assert isinstance(vq, MotionVQVAE), "a vq run rebuilds a MotionVQVAE"
+    family = load_hifigpt_family(hifigpt_run, vq, vq_run)
+    return code_family_models(evaluator, vq, family, mean, std, evaluator_run, vq_run)

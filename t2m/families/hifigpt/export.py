@@ -227,8 +227,7 @@ def export_hifigpt_from_runs(
     from t2m.export.kit.runs import normalisation as _normalisation
     from t2m.export.kit.runs import run_training_data
     from t2m.export.kit.text_sources import recorded_text_source
-    from t2m.families.masked.evaluation import load_run
-    from t2m.model.training.checkpoint import check_trained_on, read_run_config
+    from t2m.model.training.checkpoint import check_trained_on, load_run, read_run_config
 
     vq_run, hifigpt_run = Path(vq_run), Path(hifigpt_run)
     vq_record, record = read_run_config(vq_run), read_run_config(hifigpt_run)

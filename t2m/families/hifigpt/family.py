@@ -141,7 +141,7 @@ class HiFiGPTFamily(ModelFamily):
         return manifest, {"parity": checks.parity, "int8": checks.int8}
 
     def load_eval_models(self, args: argparse.Namespace, mean: Any, std: Any) -> Any:
-        from t2m.model.evaluation.evaluate import load_hifigpt_models
+        from t2m.families.hifigpt.evaluation import load_hifigpt_models
 
         return load_hifigpt_models(args.evaluator, args.vq, args.hifigpt, mean, std)
 

@@ -3,8 +3,8 @@ through t2m.families.hifigpt.loop, every segment of every request stepping in lo
 own
 seeded generator.
 
-Requests become jobs exactly as for the GPT family (gpt_codes.lockstep_job): a duration gives round(duration * fps /
-frames_per_token) steps, a null duration lets the stop head end the segment; `guidance` applies to the code logits
+Requests become jobs exactly as for the GPT family (t2m.runtime.requests.lockstep_job): a duration gives
+round(duration * fps / frames_per_token) steps, a null duration lets the stop head end the segment; `guidance` applies to the code logits
 and to the stop logits, `temperature` and `top_k` to the code draws (temperature also to the stop probability).
 """
 from __future__ import annotations
@@ -14,11 +14,11 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from t2m.decoding.lockstep import SamplingJob
-from t2m.families.gpt.served import lockstep_job
 from t2m.families.hifigpt.loop import HiFiGPTCohort, sample_code_rows
 from t2m.runtime.bound_step import BoundResidualGptStep, BoundTemporalStep
 from t2m.runtime.bundle_loader import Bundle
 from t2m.runtime.onnx_step import OnnxResidualGptStep, OnnxTemporalStep
+from t2m.runtime.requests import lockstep_job
 from t2m.runtime.text import TextEncoder
 from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 

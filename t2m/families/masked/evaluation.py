@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from t2m.families.masked.length_estimator import LengthEstimator
     from t2m.families.masked.masked_transformer import MaskedTransformer
     from t2m.families.masked.residual_transformer import ResidualTransformer
+    from t2m.model.evaluation.evaluate import Models
     from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
 
@@ -108,17 +109,6 @@ class MaskedFamily:
         return [int(n) for n in drawn]
 
 
-ModelT = TypeVar("ModelT")
-
-
-def load_run(run: str | Path, kind: str, model_type: type[ModelT]) -> ModelT:
-    """load_model(run, kind), typed: the module a run of that kind rebuilds."""
-    from t2m.model.training.checkpoint import load_model
-
-    model = load_model(run, expect_kind=kind)
-    if not isinstance(model, model_type):  # pragma: no cover - load_model builds the kind's class
-        raise ValueError(f"{run}: a {kind} run rebuilt a {type(model).__name__}, not a {model_type.__name__}")
-    return model
 
 
 def _layers_and_columns(vq: MotionVQVAE | JointVQVAE) -> tuple[int, int]:
@@ -129,13 +119,6 @@ def _layers_and_columns(vq: MotionVQVAE | JointVQVAE) -> tuple[int, int]:
     return (vq.config.residual_layers if vq.config.quantizer == "residual" else 1), 1
 
 
-def text_kind(run: str | Path) -> str:
-    from t2m.model.training.checkpoint import read_run_config
-
-    text = read_run_config(run).get("data", {}).get("text_encoder", "minilm")
-    return str(text.get("kind", "minilm") if isinstance(text, dict) else text)
-
-
 def load_masked_family(vq: MotionVQVAE | JointVQVAE, vq_run: str | Path, masked_run: str | Path,
                        residual_run: str | Path | None, length_run: str | Path | None,
                        settings: MaskedSettings) -> MaskedFamily:
@@ -143,7 +126,7 @@ def load_masked_family(vq: MotionVQVAE | JointVQVAE, vq_run: str | Path, masked_
     from t2m.families.masked.length_estimator import LengthEstimator
     from t2m.families.masked.masked_transformer import MaskedTransformer
     from t2m.families.masked.residual_transformer import ResidualTransformer
-    from t2m.model.training.checkpoint import check_trained_on
+    from t2m.model.training.checkpoint import check_trained_on, load_run, text_kind
 
     layers, columns = _layers_and_columns(vq)
     masked = load_run(masked_run, "masked", MaskedTransformer)
@@ -173,3 +156,16 @@ def load_masked_family(vq: MotionVQVAE | JointVQVAE, vq_run: str | Path, masked_
                              f"the masked transformer {masked.config.text_dim}")
         paths["length"] = str(length_run)
     return MaskedFamily(vq, masked, residual, length, text, paths, settings)
+
+
+def load_masked_models(evaluator_run: str | Path, vq_run: str | Path, masked_run: str | Path,
+                       residual_run: str | Path | None, length_run: str | Path | None, settings: MaskedSettings,
+                       data_mean: np.ndarray, data_std: np.ndarray) -> Models:
+    """The masked family: evaluator, the joint VQ (or MoMask's 1D residual VQ), the masked transformer, the residual
+    transformer and optionally the length estimator."""
+    from t2m.model.evaluation.evaluate import code_family_models, load_evaluator_and_vq
+
+    evaluator, vq, mean, std = load_evaluator_and_vq(evaluator_run, vq_run, ["joint_vq", "vq"], data_mean,
+                                                      data_std)
+    family = load_masked_family(vq, vq_run, masked_run, residual_run, length_run, settings)
+    return code_family_models(evaluator, vq, family, mean, std, evaluator_run, vq_run)

@@ -381,8 +381,7 @@ def _quantize(out_dir: Path, int8: frozenset[str], masked: MaskedTransformer, re
 # ------------------------------------------------------------------------------------------- from our runs
 
 def _load_vq(vq_run: Path) -> JointVQVAE | MotionVQVAE:
-    from t2m.families.masked.evaluation import load_run
-    from t2m.model.training.checkpoint import read_run_config
+    from t2m.model.training.checkpoint import load_run, read_run_config
 
     kind = read_run_config(vq_run)["kind"]
     if kind == "joint_vq":
@@ -404,8 +403,7 @@ def export_masked_from_runs(
     from t2m.export.kit.runs import normalisation as _normalisation
     from t2m.export.kit.runs import run_training_data
     from t2m.export.kit.text_sources import recorded_text_source
-    from t2m.families.masked.evaluation import load_run
-    from t2m.model.training.checkpoint import check_trained_on, read_run_config
+    from t2m.model.training.checkpoint import check_trained_on, load_run, read_run_config
 
     vq_run, masked_run = Path(vq_run), Path(masked_run)
     runs = {"masked": masked_run, "residual": residual_run, "length": length_run}

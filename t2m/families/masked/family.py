@@ -343,7 +343,7 @@ class MaskedFamily(ModelFamily):
 
     def load_eval_models(self, args: argparse.Namespace, mean: Any, std: Any) -> Any:
         from t2m.families.masked.evaluation import MaskedSettings as EvalSettings
-        from t2m.model.evaluation.evaluate import load_masked_models
+        from t2m.families.masked.evaluation import load_masked_models
 
         settings = EvalSettings(**{name: getattr(args, name) for name in EVAL_OPTIONS
                                    if getattr(args, name) is not None})

@@ -44,7 +44,6 @@ from t2m.model.networks.evaluator import MotionEvaluator, embed_motions, embed_t
 from t2m.motion.constants import FPS, FRAMES_PER_TOKEN
 
 if TYPE_CHECKING:
-    from t2m.families.masked.evaluation import MaskedSettings
     from t2m.model.evaluation.family import CodeDecoder, CodeFamily, TextFeatureSource
     from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
@@ -120,15 +119,14 @@ class Models:
         return int(self.vq.frames_per_token)
 
 
-def _load_evaluator_and_vq(evaluator_run: str | Path, vq_run: str | Path, vq_kinds: Sequence[str],
+def load_evaluator_and_vq(evaluator_run: str | Path, vq_run: str | Path, vq_kinds: Sequence[str],
                            data_mean: np.ndarray, data_std: np.ndarray
                            ) -> tuple[MotionEvaluator, MotionVQVAE | JointVQVAE, np.ndarray, np.ndarray]:
     """The evaluator and a VQ of one of `vq_kinds`; the VQ statistics come from its run (mean.npy/std.npy) or else
     the dataset."""
-    from t2m.families.masked.evaluation import load_run
     from t2m.model.networks.joint_vqvae import JointVQVAE
     from t2m.model.networks.vqvae import MotionVQVAE
-    from t2m.model.training.checkpoint import load_model, read_run_config
+    from t2m.model.training.checkpoint import load_model, load_run, read_run_config
 
     evaluator = load_model(evaluator_run, expect_kind="evaluator")
     kind = read_run_config(vq_run)["kind"]
@@ -141,48 +139,13 @@ def _load_evaluator_and_vq(evaluator_run: str | Path, vq_run: str | Path, vq_kin
     return evaluator, vq, np.asarray(mean, np.float32), np.asarray(std, np.float32)
 
 
-def _models(evaluator: MotionEvaluator, vq: MotionVQVAE | JointVQVAE, family: CodeFamily, mean: np.ndarray,
+def code_family_models(evaluator: MotionEvaluator, vq: MotionVQVAE | JointVQVAE, family: CodeFamily, mean: np.ndarray,
             std: np.ndarray, evaluator_run: str | Path, vq_run: str | Path) -> Models:
     if evaluator.config.feature_dim != vq.config.feat_dim or len(mean) != vq.config.feat_dim:
         raise ValueError(f"feature dims differ: evaluator {evaluator.config.feature_dim}, VQ {vq.config.feat_dim}, "
                          f"statistics {len(mean)}")
     return Models(evaluator, vq, family, mean, std, evaluator_text=evaluator.config.text_encoder,
                   paths={"evaluator": str(evaluator_run), "vq": str(vq_run), **family.paths})
-
-
-def load_models(evaluator_run: str | Path, vq_run: str | Path, gpt_run: str | Path, data_mean: np.ndarray,
-                data_std: np.ndarray) -> Models:
-    """The GPT family: evaluator, a 1D VQ and a GPT over its codes."""
-    from t2m.families.gpt.evaluation import load_gpt_family
-
-    evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
-    family = load_gpt_family(gpt_run, vq.config.nb_code, vq_run)
-    return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
-
-
-def load_hifigpt_models(evaluator_run: str | Path, vq_run: str | Path, hifigpt_run: str | Path,
-                        data_mean: np.ndarray, data_std: np.ndarray) -> Models:
-    """T2M-HiFiGPT: evaluator, a residual 1D VQ and the double-tier GPT over its code maps."""
-    from t2m.families.hifigpt.evaluation import load_hifigpt_family
-    from t2m.model.networks.vqvae import MotionVQVAE
-
-    evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["vq"], data_mean, data_std)
-    assert isinstance(vq, MotionVQVAE), "a vq run rebuilds a MotionVQVAE"
-    family = load_hifigpt_family(hifigpt_run, vq, vq_run)
-    return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
-
-
-def load_masked_models(evaluator_run: str | Path, vq_run: str | Path, masked_run: str | Path,
-                       residual_run: str | Path | None, length_run: str | Path | None, settings: MaskedSettings,
-                       data_mean: np.ndarray, data_std: np.ndarray) -> Models:
-    """The masked family: evaluator, the joint VQ (or MoMask's 1D residual VQ), the masked transformer, the residual
-    transformer and optionally the length estimator."""
-    from t2m.families.masked.evaluation import load_masked_family
-
-    evaluator, vq, mean, std = _load_evaluator_and_vq(evaluator_run, vq_run, ["joint_vq", "vq"], data_mean,
-                                                      data_std)
-    family = load_masked_family(vq, vq_run, masked_run, residual_run, length_run, settings)
-    return _models(evaluator, vq, family, mean, std, evaluator_run, vq_run)
 
 
 # ----------------------------------------------------------------------------------------- data and draws

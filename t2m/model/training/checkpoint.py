@@ -9,19 +9,20 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, overload
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, overload
 
 from torch import nn
 
 if TYPE_CHECKING:
-    from t2m.families.gpt.network import MotionGPT
     from t2m.model.networks.evaluator import MotionEvaluator
     from t2m.model.networks.vqvae import MotionVQVAE
+
+ModelT = TypeVar("ModelT")
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
 # the kinds written here by name; every model family adds the kinds of its own modules (ModelFamily.checkpoint_kinds)
-BUILT_IN_KINDS = ("vq", "gpt", "evaluator")
+BUILT_IN_KINDS = ("vq", "evaluator")
 
 
 def table_kinds() -> dict[str, tuple[str, str, str]]:
@@ -36,13 +37,10 @@ def kinds() -> tuple[str, ...]:
 
 
 def model_kind(model: nn.Module) -> str:
-    from t2m.families.gpt.network import MotionGPT
     from t2m.model.networks.vqvae import MotionVQVAE
 
     if isinstance(model, MotionVQVAE):
         return "vq"
-    if isinstance(model, MotionGPT):
-        return "gpt"
     if type(model).__name__ == "MotionEvaluator":
         return "evaluator"
     for kind, (module, class_name, _) in table_kinds().items():
@@ -128,10 +126,6 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
         from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
         return MotionVQVAE(VQConfig.from_dict(config))
-    if kind == "gpt":
-        from t2m.families.gpt.network import GPTConfig, MotionGPT
-
-        return MotionGPT(GPTConfig.from_dict(config))
     if kind == "evaluator":
         from t2m.model.networks.evaluator import EvaluatorConfig, MotionEvaluator
 
@@ -148,8 +142,6 @@ def build_model(kind: str, config: dict[str, Any]) -> nn.Module:
 
 @overload
 def load_model(run_dir: str | Path, expect_kind: Literal["vq"]) -> MotionVQVAE: ...
-@overload
-def load_model(run_dir: str | Path, expect_kind: Literal["gpt"]) -> MotionGPT: ...
 @overload
 def load_model(run_dir: str | Path, expect_kind: Literal["evaluator"]) -> MotionEvaluator: ...
 @overload
@@ -173,3 +165,17 @@ def load_model(run_dir: str | Path, expect_kind: str | None = None) -> nn.Module
     except RuntimeError as error:
         raise ValueError(f"{weights}: weights do not match config.json ({error})") from error
     return model.eval()
+
+
+def load_run(run: str | Path, kind: str, model_type: type[ModelT]) -> ModelT:
+    """load_model(run, kind), typed: the module a run of that kind rebuilds."""
+    model = load_model(run, expect_kind=kind)
+    if not isinstance(model, model_type):  # pragma: no cover - load_model builds the kind's class
+        raise ValueError(f"{run}: a {kind} run rebuilt a {type(model).__name__}, not a {model_type.__name__}")
+    return model
+
+
+def text_kind(run: str | Path) -> str:
+    """The text encoder a token model's run was trained with ("minilm", "clip"), from its config.json."""
+    text = read_run_config(run).get("data", {}).get("text_encoder", "minilm")
+    return str(text.get("kind", "minilm") if isinstance(text, dict) else text)

@@ -90,11 +90,11 @@ def prepare_data(args: argparse.Namespace, out: Path, min_layers: int = 1) -> To
     import torch
     from torch.utils.data import DataLoader
 
-    from t2m.families.gpt.training import encoder_max_length, text_features_dim
     from t2m.model.data.balancing import run_sampling_weights
     from t2m.model.data.datasets import LengthBucketSampler, open_split
     from t2m.model.data.token_maps import TokenMapDataset
     from t2m.model.training.checkpoint import load_model, read_run_config
+    from t2m.model.training.conditioning import encoder_max_length, text_features_dim
 
     vq_run = Path(args.vq)
     record = read_run_config(vq_run)
@@ -172,7 +172,7 @@ def model_config(args: argparse.Namespace, data: TokenData) -> TokenTransformerC
 
 def noisy_condition(cond: torch.Tensor, args: argparse.Namespace, generator: torch.Generator | None = None):
     """The training condition: noise (--cond-noise), then dropout to the null condition (--cond-drop)."""
-    from t2m.families.gpt.training import drop_condition, perturb_condition
+    from t2m.model.training.conditioning import drop_condition, perturb_condition
 
     return drop_condition(perturb_condition(cond, args.cond_noise, generator), args.cond_drop, generator)
 

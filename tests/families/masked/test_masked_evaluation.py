@@ -131,13 +131,12 @@ def test_masked_eval_writes_every_row_through_the_shared_loop(masked_runs, tmp_p
 def test_reconstruction_row_is_the_joint_vqs_with_every_layer(masked_runs, fast_text):
     """The VQ reconstruction row's root-relative MPJPE equals the joint VQ's own encode -> decode of the same crops
     (all residual layers), computed here without the evaluation's helpers."""
-    from t2m.families.masked.evaluation import MaskedSettings
+    from t2m.families.masked.evaluation import MaskedSettings, load_masked_models
     from t2m.model.data.motion_data import MotionDirectory
     from t2m.model.evaluation.evaluate import (
         EvalOptions,
         draw,
         evaluate,
-        load_masked_models,
         mpjpe_mm,
         read_clips,
         reconstruct_codes,
@@ -203,8 +202,8 @@ def test_stream_maps_are_generated_per_segment_concatenated_along_time_and_decod
     """T2LM's streams as the service makes them: each segment's map for its own text and rows, the maps of a stream
     concatenated along time, one decode per stream."""
     import t2m.model.evaluation.evaluate as evaluation
-    from t2m.families.masked.evaluation import MaskedSettings
-    from t2m.model.evaluation.evaluate import EvalOptions, load_masked_models, multi_sentence
+    from t2m.families.masked.evaluation import MaskedSettings, load_masked_models
+    from t2m.model.evaluation.evaluate import EvalOptions, multi_sentence
 
     reader_mean, reader_std = np.zeros(263, np.float32), np.ones(263, np.float32)
     models = load_masked_models(masked_runs["evaluator"], masked_runs["joint_vq"], masked_runs["masked"],
@@ -239,8 +238,8 @@ def test_stream_maps_are_generated_per_segment_concatenated_along_time_and_decod
 
 
 def test_masked_batches_go_by_length_and_come_back_in_row_order(masked_runs, loop_calls):
-    from t2m.families.masked.evaluation import MaskedSettings
-    from t2m.model.evaluation.evaluate import EvalOptions, load_masked_models, sample
+    from t2m.families.masked.evaluation import MaskedSettings, load_masked_models
+    from t2m.model.evaluation.evaluate import EvalOptions, sample
 
     models = load_masked_models(masked_runs["evaluator"], masked_runs["joint_vq"], masked_runs["masked"],
                                 masked_runs["residual"], None, MaskedSettings(steps=2), np.zeros(263, np.float32),
