@@ -4,8 +4,9 @@ own
 seeded generator.
 
 Requests become jobs exactly as for the GPT family (t2m.runtime.requests.lockstep_job): a duration gives
-round(duration * fps / frames_per_token) steps, a null duration lets the stop head end the segment; `guidance` applies to the code logits
-and to the stop logits, `temperature` and `top_k` to the code draws (temperature also to the stop probability).
+round(duration * fps / frames_per_token) steps, a null duration lets the stop head end the segment; `guidance`
+applies to the code logits and to the stop logits, `temperature` and `top_k` to the code draws (temperature also to
+the stop probability).
 """
 from __future__ import annotations
 
