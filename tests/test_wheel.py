@@ -69,7 +69,10 @@ def test_wheel_holds_one_package_the_viewer_and_the_default_model(installed):
     for bundle in ("default", "gpt", "masked"):
         manifest = json.loads((REPO / "t2m" / "bundles" / bundle / "manifest.json").read_text())
         assert {f"t2m/bundles/{bundle}/{name}" for name in [*manifest["files"], "manifest.json"]} <= set(names)
-    assert "t2m/service/static/index.html" in names
+    assert {"t2m/service/static/index.html", "t2m/service/static/viewer.css", "t2m/service/static/viewer/main.js",
+            "t2m/runtime/keep_rows.onnx"} <= set(names)
+    viewer = {name.rsplit("/", 1)[1] for name in names if name.startswith("t2m/service/static/viewer/")}
+    assert viewer == {path.name for path in (REPO / "t2m" / "service" / "static" / "viewer").glob("*.js")}
 
 
 def test_version_and_single_namespace(installed):

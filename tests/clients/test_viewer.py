@@ -26,7 +26,7 @@ from t2m.testing.server_process import running_server
 pytestmark = pytest.mark.clients
 
 REPO = Path(__file__).resolve().parents[2]
-RIGHT_BONE_RGB = np.array([0xF5, 0xA3, 0x5C])  # viewer.js SIDE_COLORS.right: only right-side bones use it
+RIGHT_BONE_RGB = np.array([0xF5, 0xA3, 0x5C])  # viewer/state.js SIDE_COLORS.right: only right-side bones use it
 
 
 def _artifacts_dir() -> Path:

@@ -151,4 +151,4 @@ def test_metrics_count_tokens(app_client):
 def test_viewer_is_served(app_client):
     response = app_client.get("/")
     assert response.status_code == 200 and "<html" in response.text.lower()
-    assert app_client.get("/static/viewer.js").status_code == 200
+    assert app_client.get("/static/viewer/main.js").status_code == 200
