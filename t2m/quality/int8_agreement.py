@@ -3,7 +3,7 @@
 Writes OUT (the bundle with gpt_step.onnx quantised by `quantize_graph`, 7-bit weights; manifest
 quantization.gpt_step = "int8-dynamic") and prints, over `--conditions` seeded random text conditions at the
 bundle's default guidance, 50-step greedy rollouts of both graphs
-(t2m.export.writing.quantize.gpt_int8_report): how many
+(t2m.families.gpt.parity.gpt_int8_report): how many
 code sequences are identical, the mean first position where they part, and the largest logit difference while they
 agree. Table 1 and the probes of the copy are separate commands (`t2m eval --bundle OUT`, `t2m/quality/probes.py
 --bundle OUT`; benchmarks/README.md).
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from t2m.export.writing.int8 import quantize_bundle_gpt
-from t2m.export.writing.quantize import gpt_int8_report
+from t2m.families.gpt.parity import gpt_int8_report
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,8 +20,21 @@ import numpy as np
 from t2m.runtime.text import TextEncoder
 from t2m.runtime.types import CodeLayout, GenerationRequest, ModelLimits
 
-__all__ = ["BodyParts", "EndsSegments", "FamilyCodes", "FamilyJob", "HasCodeLayout", "MeasuresDecoderReach",
-           "RecipeHandles", "body_parts", "code_layout", "decoder_reach", "ends_segments", "recipe_handles"]
+__all__ = [
+    "BodyParts",
+    "EndsSegments",
+    "FamilyCodes",
+    "FamilyJob",
+    "HasCodeLayout",
+    "MeasuresDecoderReach",
+    "RecipeHandles",
+    "StepsOneGraph",
+    "body_parts",
+    "code_layout",
+    "decoder_reach",
+    "ends_segments",
+    "recipe_handles",
+]
 
 
 class FamilyJob(Protocol):
@@ -63,6 +76,13 @@ class HasCodeLayout(Protocol):
     """A served object whose codes are tokens: what one step of them is (an answer's handle carries and checks it)."""
 
     code_layout: CodeLayout
+
+
+@runtime_checkable
+class StepsOneGraph(Protocol):
+    """A served object stepping one graph per token (the GPT family's): quantisation parity wraps its step."""
+
+    step: Any
 
 
 @runtime_checkable

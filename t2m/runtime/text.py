@@ -12,7 +12,7 @@ import numpy as np
 import onnxruntime as ort
 from tokenizers import Tokenizer
 
-__all__ = ["TextEncoder", "load_tokenizer"]
+__all__ = ["TextEncoder", "encode_token_states", "load_tokenizer", "pooled_token_states"]
 
 
 def load_tokenizer(file: Path, max_length: int) -> Tokenizer:
@@ -46,3 +46,21 @@ class TextEncoder:
         attention_mask = np.asarray([e.attention_mask for e in encodings], dtype=np.int64)
         (features,) = self.session.run(["text_features"], {"input_ids": input_ids, "attention_mask": attention_mask})
         return np.asarray(features, dtype=np.float32)
+
+
+def encode_token_states(text: TextEncoder, texts: Sequence[str]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each sentence's token states [L_i, Dt] (its own tokens, the batch's padding cut off) and mask [L_i] (all
+    True), from the text graph's `token_states` output."""
+    encodings = text.tokenizer.encode_batch(list(texts))
+    ids = np.asarray([e.ids for e in encodings], dtype=np.int64)
+    mask = np.asarray([e.attention_mask for e in encodings], dtype=np.int64)
+    (states,) = text.session.run(["token_states"], {"input_ids": ids, "attention_mask": mask})
+    counts = mask.sum(axis=1)
+    return ([np.asarray(row[:count], np.float32) for row, count in zip(states, counts)],
+            [np.ones(int(count), bool) for count in counts])
+
+
+def pooled_token_states(states: Sequence[np.ndarray]) -> np.ndarray:
+    """Each text's real tokens' states averaged: MiniLM's own sentence pooling (before its normalisation), the
+    features a token-state bundle's caption index and unknown-text check compare."""
+    return np.stack([row.mean(axis=0) for row in states]).astype(np.float32)

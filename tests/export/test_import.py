@@ -18,7 +18,6 @@ from served_reference import clip_features, compare_served, gpt_motion, within_r
 from t2m.cli.main import main as t2m
 from t2m.export.graphs.export import ort_session
 from t2m.export.importers.kit import strip_prefix
-from t2m.export.kit.parity import ort_greedy_rollout
 from t2m.families.gpt.import_t2m_gpt import (
     CLIP_REQUIRED,
     import_t2m_gpt,
@@ -27,6 +26,7 @@ from t2m.families.gpt.import_t2m_gpt import (
     load_release,
 )
 from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.parity import ort_greedy_rollout
 from t2m.families.gpt.random_bundle import build_random_bundle
 from t2m.families.gpt.t2m_gpt_release import release_gpt_state, release_vq_state, write_release_files
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig

@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from t2m.export.graphs.decoder import export_decoder
-from t2m.export.kit.parity import decoder_parity, gpt_parity, text_parity
+from t2m.export.kit.parity import decoder_parity, text_parity
 from t2m.families.gpt.export_graphs import export_gpt_step
 from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.parity import gpt_parity
 from t2m.model.networks.vqvae import MotionVQVAE, VQConfig
 
 TOLERANCE = 1e-4

@@ -11,17 +11,11 @@ import pytest
 import torch
 
 from t2m.export.graphs.export import ort_session
-from t2m.export.kit.parity import ort_greedy_rollout
 from t2m.export.writing.int8 import quantize_bundle_gpt
-from t2m.export.writing.quantize import (
-    GptInt8Report,
-    gpt_int8_report,
-    quantize_graph,
-    quantize_graph_int4,
-    text_int8_report,
-)
+from t2m.export.writing.quantize import quantize_graph, quantize_graph_int4, text_int8_report
 from t2m.families.gpt.export_graphs import export_gpt_step
 from t2m.families.gpt.network import GPTConfig, MotionGPT
+from t2m.families.gpt.parity import GptInt8Report, gpt_int8_report, ort_greedy_rollout
 from t2m.families.gpt.random_bundle import build_random_bundle
 from tests.export.non_vnni import ReferenceSession
 

@@ -167,8 +167,8 @@ def test_a_token_state_bundle_indexes_its_captions_as_its_requests_pool_them(tmp
     from t2m.cli.main import main
     from t2m.export.writing.index_captions import encode_with_bundle, training_captions
     from t2m.families.diffusion.random_bundle import build_random_diffusion_bundle
-    from t2m.families.diffusion.served import encode_token_states, pooled_token_states
     from t2m.runtime.engine import OnnxEngine
+    from t2m.runtime.text import encode_token_states, pooled_token_states
     from tests.model.synthetic_motion_data import make_dataset
 
     bundle = tmp_path / "dip"

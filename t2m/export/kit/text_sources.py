@@ -9,7 +9,7 @@ from typing import Any
 
 from t2m.export.graphs.text import export_text_graph, export_tiny_text_encoder, export_token_states_graph
 
-__all__ = ["TextSource", "clip_text_source", "encoder_text_source", "mdm_clip_text_source", "minilm_text_source",
+__all__ = ["TextSource", "clip_text_source", "encoder_text_source", "minilm_text_source",
            "recorded_text_source", "save_text_tokenizer", "tiny_text_source",
            "token_states_text_source"]
 
@@ -65,14 +65,6 @@ def clip_text_source(weights: str | Path) -> TextSource:
         return encoder_text_source(ClipEncoder(weights))
     except ImportError as error:  # open_clip is an optional extra: a user error, not a crash
         raise ValueError(str(error)) from error
-
-
-def mdm_clip_text_source(weights: str | Path) -> TextSource:
-    """MDM's CLIP text path (t2m.families.diffusion.text_encoders.MdmClipEncoder): the CLIP graph of the other
-    families with OpenAI's tokenizer cut to 22 ids (20 BPE tokens), features in float32."""
-    from t2m.families.diffusion.text_encoders import MdmClipEncoder
-
-    return encoder_text_source(MdmClipEncoder(weights))
 
 
 def token_states_text_source(encoder: Any) -> TextSource:

@@ -151,13 +151,13 @@ def compare_bundles(fp32_dir: str | Path, quantised_dir: str | Path, graphs: Seq
                                                     report.graphs[name])
     engines = [OnnxEngine(bundle) for bundle in (fp32, quantised)]
     if captured:
-        from t2m.families.gpt.served import GptCodes
+        from t2m.runtime.family_codes import StepsOneGraph
 
         (name,) = graphs   # the one captured graph a family has: the GPT's, served through its step
         fp32_codes, quantised_codes = (engine.codes for engine in engines)
         if name not in fp32.sessions or name not in quantised.sessions:
             raise ValueError(f"{name}: not opened for CUDA-graph serving in both bundles")
-        if not isinstance(fp32_codes, GptCodes) or not isinstance(quantised_codes, GptCodes):
+        if not isinstance(fp32_codes, StepsOneGraph) or not isinstance(quantised_codes, StepsOneGraph):
             raise ValueError(f"{name}: only the GPT family serves a captured step graph")
         fp32_codes.step = _ComparingStep(fp32_codes.step, quantised_codes.step, report.graphs[name])
     guidance = engines[0].limits.default_guidance

@@ -51,7 +51,7 @@ def encode_with_bundle(bundle_dir: Path, texts: list[str], batch: int = 256, pro
     graph's real tokens averaged, as the diffusion family's requests pool them)."""
     import onnxruntime as ort
 
-    from t2m.families.diffusion.served import encode_token_states, pooled_token_states
+    from t2m.runtime.text import encode_token_states, pooled_token_states
 
     manifest = read_manifest(bundle_dir)
     session = ort.InferenceSession(str(bundle_dir / "text_encoder.onnx"), providers=["CPUExecutionProvider"])

@@ -107,18 +107,6 @@ def quantize_graph_int4(src: str | Path, dst: str | Path) -> Path:
 
 
 @dataclass
-class GptInt8Report:
-    max_abs_logit_diff: float
-    greedy_codes_match: bool
-    steps: int
-    fp32_ms_per_step: float
-    int8_ms_per_step: float
-    fp32_bytes: int
-    int8_bytes: int
-    agree_steps: int = 0            # greedy steps before the first code that differs (= steps when all match)
-
-
-@dataclass
 class TextInt8Report:
     min_cosine: float
     mean_cosine: float
@@ -126,38 +114,6 @@ class TextInt8Report:
     int8_ms_per_batch: float
     fp32_bytes: int
     int8_bytes: int
-
-
-def gpt_int8_report(fp32_path: str | Path, int8_path: str | Path, manifest: dict, steps: int = 50,
-                    seed: int = 0, threads: int = 1) -> GptInt8Report:
-    """Compare the float32 and int8 GPT step graphs on the same greedy rollout from random conditions."""
-    from t2m.export.graphs.export import ort_session
-    from t2m.export.kit.parity import ort_greedy_rollout
-
-    gpt = manifest["gpt"]
-    steps = min(steps, manifest["max_tokens"])
-    rng = np.random.default_rng(seed)
-    cond = rng.normal(size=(2, manifest["text_encoder"]["dim"])).astype(np.float32)
-    if manifest["text_encoder"]["normalize"]:
-        cond /= np.linalg.norm(cond, axis=1, keepdims=True)
-    length = np.array([steps, 0], np.int64)
-    shape = (gpt["n_layer"], gpt["n_head"], gpt["head_dim"])
-    guidance = gpt["default_guidance"]
-    results = []
-    for path in (fp32_path, int8_path):
-        session = ort_session(path, threads=threads)
-        ort_greedy_rollout(session, cond, length, shape, 2, manifest["end_id"], guidance)  # warm-up
-        results.append(ort_greedy_rollout(session, cond, length, shape, steps, manifest["end_id"], guidance))
-    codes32, logits32, t32 = results[0].codes, results[0].logits, results[0].seconds
-    codes8, logits8, t8 = results[1].codes, results[1].logits, results[1].seconds
-    # Logit differences are compared along the float32 trajectory only while the codes agree.
-    agree = int(np.argmax(np.any(codes32 != codes8, axis=0))) if np.any(codes32 != codes8) else steps
-    diffs = [float(np.abs(a - b).max()) for a, b in zip(logits32[: agree + 1], logits8[: agree + 1])]
-    return GptInt8Report(
-        max_abs_logit_diff=max(diffs), greedy_codes_match=bool(np.array_equal(codes32, codes8)), steps=steps,
-        fp32_ms_per_step=1000 * t32 / steps, int8_ms_per_step=1000 * t8 / steps,
-        fp32_bytes=Path(fp32_path).stat().st_size, int8_bytes=Path(int8_path).stat().st_size, agree_steps=agree,
-    )
 
 
 REPORT_TEXTS = [

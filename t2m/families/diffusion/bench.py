@@ -52,7 +52,7 @@ def denoiser_feed(engine: OnnxEngine, seed: int = 0) -> dict[str, np.ndarray]:
     feed = {"x_t": rng.standard_normal((2, frames, features)).astype(np.float32),
             "t": np.array([s.steps - 1, s.steps - 1], np.int64), "length": np.array([frames, frames], np.int64)}
     if s.tokens:
-        from t2m.families.diffusion.served import encode_token_states
+        from t2m.runtime.text import encode_token_states
 
         (states,), _ = encode_token_states(engine.text, ["a person walks forward"])
         feed["text"] = np.stack([states, np.zeros_like(states)])

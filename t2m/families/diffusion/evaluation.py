@@ -27,7 +27,7 @@ class TokenStateFeatures:
         self.max_length = max_length
 
     def encode(self, texts: Sequence[str]) -> np.ndarray:
-        from t2m.families.diffusion.served import encode_token_states
+        from t2m.runtime.text import encode_token_states
 
         states, masks = encode_token_states(self.text, texts)
         out = np.zeros((len(texts), self.max_length, states[0].shape[-1] + 1), np.float32)
@@ -64,7 +64,8 @@ class BundleDiffusionFamily:
 
     def _request(self, conds: Sequence[np.ndarray], frames: Sequence[int], guidance: float,
                  rng: np.random.Generator) -> Any:
-        from t2m.families.diffusion.served import DiffusionRequest, pooled_token_states
+        from t2m.families.diffusion.served import DiffusionRequest
+        from t2m.runtime.text import pooled_token_states
 
         if self._served.settings.tokens:
             split = [split_token_states(np.asarray(cond, np.float32)) for cond in conds]

@@ -46,10 +46,10 @@ from t2m.runtime.body_parts import part_channels
 from t2m.runtime.bundle_loader import Bundle
 from t2m.runtime.reach import DecoderReach
 from t2m.runtime.requests import segment_steps
-from t2m.runtime.text import TextEncoder
+from t2m.runtime.text import TextEncoder, encode_token_states, pooled_token_states
 from t2m.runtime.types import GenerationRequest, ModelLimits, RequestLimitError
 
-__all__ = ["DiffusionCodes", "DiffusionRequest", "OnnxDenoiser", "encode_token_states", "frame_reach"]
+__all__ = ["DiffusionCodes", "DiffusionRequest", "OnnxDenoiser", "frame_reach"]
 
 
 class OnnxDenoiser:
@@ -102,24 +102,6 @@ def frame_reach(decoder: ort.InferenceSession, features: int, frames: int = 16) 
         raise BundleError(f"decoder.onnx: changing frame {frames // 2} moved frames {moved.tolist()}; the diffusion "
                           "family's decoder must de-normalise each frame on its own")
     return DecoderReach(ahead=0, behind=0)
-
-
-def encode_token_states(text: TextEncoder, texts: Sequence[str]) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Each sentence's token states [L_i, Dt] (its own tokens, the batch's padding cut off) and mask [L_i] (all
-    True), from the text graph's `token_states` output."""
-    encodings = text.tokenizer.encode_batch(list(texts))
-    ids = np.asarray([e.ids for e in encodings], dtype=np.int64)
-    mask = np.asarray([e.attention_mask for e in encodings], dtype=np.int64)
-    (states,) = text.session.run(["token_states"], {"input_ids": ids, "attention_mask": mask})
-    counts = mask.sum(axis=1)
-    return ([np.asarray(row[:count], np.float32) for row, count in zip(states, counts)],
-            [np.ones(int(count), bool) for count in counts])
-
-
-def pooled_token_states(states: Sequence[np.ndarray]) -> np.ndarray:
-    """Each text's real tokens' states averaged: MiniLM's own sentence pooling (before its normalisation), the
-    features a token-state bundle's caption index and unknown-text check compare."""
-    return np.stack([row.mean(axis=0) for row in states]).astype(np.float32)
 
 
 @dataclass

@@ -35,6 +35,8 @@ from t2m.model.networks.text_encoders import MINILM_MAX_LENGTH, ClipEncoder, Tok
 if TYPE_CHECKING:
     from tokenizers import Tokenizer
 
+    from t2m.export.kit.text_sources import TextSource
+
 __all__ = ["MDM_CLIP_CONTEXT", "MDM_MAX_TEXT_TOKENS", "MdmClipEncoder", "TokenStateCache", "TokenStateEncoder",
            "cache_token_states", "clip_encode_text_fp16", "distilbert_encoder", "mdm_clip_features",
            "minilm_token_encoder"]
@@ -226,3 +228,11 @@ def cache_token_states(source: object, encoder: TokenStateEncoder, path: str | P
     lengths = np.array([len(known[t]) for t in texts], np.int64)
     return TokenStateCache(encoder.name, texts, np.append(0, np.cumsum(lengths)),
                            np.concatenate([known[t] for t in texts]).astype(np.float16))
+
+
+def mdm_clip_text_source(weights: str | Path) -> TextSource:
+    """MDM's CLIP text path (t2m.families.diffusion.text_encoders.MdmClipEncoder): the CLIP graph of the other
+    families with OpenAI's tokenizer cut to 22 ids (20 BPE tokens), features in float32."""
+    from t2m.export.kit.text_sources import encoder_text_source
+
+    return encoder_text_source(MdmClipEncoder(weights))

@@ -151,8 +151,8 @@ def _export_into(
     license: str, int8: str, notes: str, check_parity: bool, parity_steps: int, encoder: bool = True,
     fixed_step: bool = False,
 ) -> tuple[dict, ExportChecks]:
-    from t2m.export.kit.parity import bundle_parity
-    from t2m.export.writing.quantize import gpt_int8_report, text_int8_report
+    from t2m.export.writing.quantize import text_int8_report
+    from t2m.families.gpt.parity import bundle_parity, gpt_int8_report
 
     log.info("exporting the text encoder")
     text_entry = text_source.write(out_dir)

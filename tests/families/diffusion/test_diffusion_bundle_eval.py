@@ -54,7 +54,7 @@ def test_token_states_round_trip_through_one_array(diffusion_eval):
     arch, bundle, evaluator, _ = diffusion_eval
     if arch != "dip":
         pytest.skip("pooled text: the features are the text graph's own")
-    from t2m.families.diffusion.served import encode_token_states
+    from t2m.runtime.text import encode_token_states
 
     models = load_bundle_models(evaluator, bundle)
     assert isinstance(models.family_text, TokenStateFeatures)

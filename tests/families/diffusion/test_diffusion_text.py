@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from t2m.export.graphs.export import ort_session
-from t2m.export.kit.text_sources import mdm_clip_text_source, token_states_text_source
+from t2m.export.kit.text_sources import token_states_text_source
 from t2m.families.diffusion.distilbert import DistilBert, DistilBertConfig, build_wordpiece_tokenizer, load_distilbert
 from t2m.families.diffusion.distilbert_release import RELEASE, hub_state, tiny_vocab, write_distilbert_folder
 from t2m.families.diffusion.text_encoders import (
@@ -24,6 +24,7 @@ from t2m.families.diffusion.text_encoders import (
     clip_encode_text_fp16,
     distilbert_encoder,
     mdm_clip_features,
+    mdm_clip_text_source,
     minilm_token_encoder,
 )
 from t2m.model.networks.text_encoders import ClipEncoder, minilm_model_dir
