@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The CMU actions: the default model's recipe (scripts/train_hifigpt_model.sh, version 0.3.0) retrained on Bandai-Namco AND
+# The CMU actions: the default model's recipe (t2m/families/hifigpt/train_embedded_model.sh, version 0.3.0) retrained on Bandai-Namco AND
 # the CMU motions with people's HumanML3D sentences (t2m data merge), to see whether people's sentences widen what the
 # model follows. Every option is the default model's; only the data differ. Run from the repository root in the
 # training environment (scripts/setup_env.sh .venv train,dev); each stage writes progress, train.log, log.csv and

@@ -7,7 +7,7 @@
 # repository root in the training environment; every stage writes progress, train.log, log.csv and curves.png in
 # its run directory and can be continued with --resume.
 set -euo pipefail
-DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_gpt_model.sh, first command)
+DATA="${DATA:-data/bandai}"           # built by `t2m data build` (t2m/families/gpt/train_embedded_model.sh, first command)
 RUNS="${RUNS:-runs}"
 TEXT="$RUNS/text_minilm.npz"          # the GPT's caption cache: shared, computed once (~1 min)
 
@@ -42,7 +42,7 @@ t2m train length --data "$DATA" --out "$RUNS/length" --steps 3000 --batch-size 2
 
 # 2b/3b. Continued in a second session (t2m/bundles/masked 0.2.0): both transformers resumed from their checkpoints
 #    (--resume keeps the optimiser and RNG state; the schedule is a function of the step and --steps) with the LR
-#    raised to 4e-4 and one thread each, beside the T2M-HiFiGPT training (scripts/train_hifigpt_model.sh) and helper
+#    raised to 4e-4 and one thread each, beside the T2M-HiFiGPT training (t2m/families/hifigpt/train_embedded_model.sh) and helper
 #    work, so the wall times are upper bounds. Masked 1600 -> 4600 steps: 101.6 min wall (val CE 2.88 -> 1.91, with
 #    every token masked 3.15 -> 2.67); residual 700 -> 2000 steps: 56.5 min wall (val CE 4.59 -> 4.44).
 t2m train masked --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/masked" --steps 4600 --batch-size 32 \
@@ -54,12 +54,12 @@ t2m train residual --data "$DATA" --vq "$RUNS/joint_vq" --out "$RUNS/residual" -
   --lr-milestones 0.85 --cond-drop 0.2 --cond-noise 0.8 --balance-power 0.3 --text-cache "$TEXT" \
   --codes-cache "$RUNS/masked" --log-every 25 --val-every 200 --save-every 100 --threads 1 --seed 0 --resume
 
-# The evaluator of the default GPT's table (scripts/train_gpt_model.sh; deterministic, 0.6 min), if missing.
+# The evaluator of the default GPT's table (t2m/families/gpt/train_embedded_model.sh; deterministic, 0.6 min), if missing.
 [ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
   --text-cache "$TEXT" --steps 600 --threads 2
 
 # 5. Evaluation: the same `t2m eval`, evaluator, split, repeats and stream settings as the default
-#    GPT's table (scripts/train_gpt_model.sh; its evaluator run is needed here), so the two tables compare.
+#    GPT's table (t2m/families/gpt/train_embedded_model.sh; its evaluator run is needed here), so the two tables compare.
 #    Generation runs the service's loop (t2m.families.masked.loop): 10 re-masking steps, masked-stage guidance 4 (the
 #    bundle's default; guidance 1 was left out to fit the session), residual stage guidance 5 (MoMask's), top-k 26 on
 #    both stages (MoMask's and MoGenTS's eval recipe: 10% of the codebook; 0.1.0 sampled from every code); --length

@@ -2,12 +2,12 @@
 # T2M-HiFiGPT (a residual VQ-VAE at 8 frames per code + the double-tier GPT) trained on Bandai-Namco, sized
 # so that all stages take about 2 hours on this project's 2-core CPU machine: the exact commands that produced
 # the default bundle t2m/bundles/default (0.2.0, 0.2.1, 0.3.0) on 2026-11-25. Stages 1 and 2 ran with ONE thread
-# beside the masked model's continued training (scripts/train_masked_model.sh, 2b/3b) and helper work, so their wall
+# beside the masked model's continued training (t2m/families/masked/train_embedded_model.sh, 2b/3b) and helper work, so their wall
 # times are upper bounds; 2b ran alone on 2 threads, 2c on one beside its control. Run from the repository root in
 # the training environment; every stage writes progress, train.log, log.csv and curves.png in its run directory and
 # can be continued with --resume.
 set -euo pipefail
-DATA="${DATA:-data/bandai}"           # built by `t2m data build` (scripts/train_gpt_model.sh, first command)
+DATA="${DATA:-data/bandai}"           # built by `t2m data build` (t2m/families/gpt/train_embedded_model.sh, first command)
 RUNS="${RUNS:-runs}"
 TEXT="$RUNS/text_minilm.npz"          # the GPT's caption cache: shared, computed once (~1 min)
 
@@ -51,7 +51,7 @@ t2m train vq-decoder --data "$DATA" --vq "$RUNS/rvq" --out "$RUNS/rvq_causal" --
   --window 64 --lr 2e-4 --warmup-steps 200 --lr-milestones 0.7 --bone-weight 0.5 --balance-power 0.5 --log-every 50 \
   --val-every 1000 --save-every 500 --threads 1 --seed 0
 
-# The evaluator of the default GPT's table (scripts/train_gpt_model.sh; deterministic, 0.6 min), if missing.
+# The evaluator of the default GPT's table (t2m/families/gpt/train_embedded_model.sh; deterministic, 0.6 min), if missing.
 [ -d "${EVALUATOR:-$RUNS/evaluator}" ] || t2m train evaluator --data "$DATA" --out "${EVALUATOR:-$RUNS/evaluator}" \
   --text-cache "$TEXT" --steps 600 --threads 2
 
