@@ -5,3 +5,4 @@ One version number for the package, the HTTP API (OpenAPI `info.version`, `/heal
 from __future__ import annotations
 
 __version__ = "0.4.0"
+DISTRIBUTION = "t2m-service"   # the installed distribution's name, as `t2m --version` prints it

@@ -43,7 +43,7 @@ ALLOWED_OURS = {
     "export": {"export", "model", "motion", "bundle", "decoding", "bundles", "runtime", "api"},
     "families": {"families", "bundle", "runtime", "api", "export", "model", "decoding", "motion", "bundles", "bench",
                  "quality", "testing"},
-    # the CLI runs the runtime and the offline code; `t2m serve` is plugged in by the service (t2m_service.commands)
+    # the CLI runs the runtime and the offline code; `t2m serve` is plugged in by the service (t2m_commands)
     "cli": {"cli", "runtime", "api", "export", "model", "motion", "bundle", "bundles", "decoding", "bench", "quality"},
     # the measurements (`t2m bench`, `t2m eval SUBJECT`) and the helpers tests and benchmarks share
     "bench": {"bench", "runtime", "api", "export", "model", "motion", "bundle", "bundles", "decoding", "testing"},

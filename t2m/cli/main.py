@@ -8,7 +8,7 @@ import sys
 from collections.abc import Sequence
 from importlib.metadata import entry_points
 
-from t2m import __version__
+from t2m import DISTRIBUTION, __version__
 from t2m.cli.subjects import run_subject, subject_of
 
 # Each module in cli/commands exposes `register(subparsers)`, adding the command named here; the handler it sets via
@@ -16,7 +16,7 @@ from t2m.cli.subjects import run_subject, subject_of
 # command being run is imported, so `t2m serve` and `t2m generate` never pay for (or need) torch. Packages that are
 # not the CLI's add their commands as entry points of the group PLUGGED_COMMANDS, each naming such a module whose
 # HELP is its one line: the HTTP service adds `t2m serve` that way, so the CLI never imports the service.
-PLUGGED_COMMANDS = "t2m_service.commands"
+PLUGGED_COMMANDS = "t2m_commands"
 BUILTIN_COMMANDS: dict[str, tuple[str, str]] = {
     "motion": ("t2m.cli.commands.motion", "convert between features, joints and BVH"),
     "data": ("t2m.cli.commands.data", "build a training set in HumanML3D's layout"),
@@ -61,7 +61,7 @@ def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
 
     `selected=None` registers every command (used by tests and documentation tools)."""
     parser = argparse.ArgumentParser(prog="t2m", description="Text-to-motion: data, training, export and serving.")
-    parser.add_argument("--version", action="version", version=f"t2m-service {__version__}")
+    parser.add_argument("--version", action="version", version=f"{DISTRIBUTION} {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
         if selected is None or name == selected:

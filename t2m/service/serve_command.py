@@ -1,6 +1,6 @@
 """`t2m serve`: run the HTTP service (uvicorn on service.app) - the same command the container runs.
 
-The HTTP service adds this command to the CLI (pyproject's entry point group t2m_service.commands), so the CLI itself
+The HTTP service adds this command to the CLI (pyproject's entry point group t2m_commands), so the CLI itself
 never imports the service."""
 from __future__ import annotations
 

@@ -105,7 +105,7 @@ def render_model_card(manifest: Mapping[str, Any], notes: str = "") -> str:
     lines = [
         f"# {manifest['name']} {manifest['version']}",
         "",
-        "Text-to-motion model bundle for t2m-service (VQ-VAE decoder + GPT over motion codes + text encoder, ONNX).",
+        "Text-to-motion model bundle (VQ-VAE decoder + GPT over motion codes + text encoder, ONNX).",
         "",
         "| | |",
         "| --- | --- |",
