@@ -52,3 +52,23 @@ def test_embedded_bundles_are_named_by_their_folder(tmp_path, monkeypatch) -> No
     (tmp_path / "default").mkdir()  # a directory of that name wins over the embedded bundle
     assert resolve_bundle("default") == Path("default")
     assert resolve_bundle("no-such-bundle") == Path("no-such-bundle")
+
+
+@pytest.mark.parametrize(("command", "subject"), [("bench", "host-loop"), ("eval", "probes"),
+                                                   ("bench", "hifigpt-vs-gpt"), ("eval", "diffusion-joins")])
+def test_a_subject_runs_under_its_own_name(command: str, subject: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """`t2m bench SUBJECT` / `t2m eval SUBJECT`: the shared subjects and a family's own are reached by the CLI, and
+    their usage says how they were called."""
+    with pytest.raises(SystemExit) as raised:
+        main([command, subject, "--help"])
+    assert raised.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: t2m {command} {subject}")
+    assert sys.argv[0] != f"t2m {command} {subject}"   # the program name is given back
+
+
+def test_the_subjects_are_listed_in_the_commands_help() -> None:
+    from t2m.cli.subjects import subjects
+
+    for command in ("bench", "eval"):
+        help_text = build_parser(command)._subparsers._group_actions[0].choices[command].format_help()  # type: ignore[union-attr]
+        assert all(f"  {name} " in help_text for name in subjects(command)), help_text

@@ -6,6 +6,7 @@ subject being run is imported."""
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Sequence
 
 from t2m.bundle import iter_families
@@ -48,8 +49,14 @@ def subject_of(argv: Sequence[str]) -> tuple[str, str] | None:
 
 
 def run_subject(command: str, subject: str, argv: Sequence[str]) -> int:
+    """The subject's main(argv), its usage and errors named `t2m COMMAND SUBJECT` (argparse's prog is argv[0])."""
     module, _ = subjects(command)[subject]
-    return int(importlib.import_module(module).main(list(argv)) or 0)
+    main = importlib.import_module(module).main
+    program, sys.argv[0] = sys.argv[0], f"t2m {command} {subject}"
+    try:
+        return int(main(list(argv)) or 0)
+    finally:
+        sys.argv[0] = program
 
 
 def subjects_help(command: str) -> str:
