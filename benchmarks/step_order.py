@@ -1,7 +1,7 @@
 """Short requests first, before/after in one run: two `t2m serve` processes on the same bundle, both with continuous
-batching, one stepping every cohort at every step boundary (T2M_STEP_ORDER=every-cohort, the order before issue
-29), one running the shortest work first (shortest-first, the default), driven by the same clients in alternating
-phases so that both see the same machine.
+batching, one stepping every cohort at every step boundary (T2M_STEP_ORDER=every-cohort, the order before
+shortest-first), one running the shortest work first (shortest-first, the default), driven by the same clients in
+alternating phases so that both see the same machine.
 
 Phases, each against both servers in every round (order before, after, then after, before, ...):
   short alone  a probe sends a 2 s one-sentence request every --probe-interval-ms (200), whether or not the last one
