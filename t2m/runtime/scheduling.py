@@ -29,7 +29,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from t2m.runtime.continuous import PreparedJobs, Sampled
 from t2m.runtime.requests import segment_steps
@@ -162,29 +162,19 @@ class QueuedWorkers:
 
     async def generate(self, request: GenerationRequest, timeout_s: float) -> Motion:
         """Generate without blocking the event loop; GenerationTimeout (and cancellation) after `timeout_s`."""
-        future = self.submit_nowait(request)
-        try:
-            return await asyncio.wait_for(asyncio.wrap_future(future), timeout_s)
-        except asyncio.TimeoutError:
-            request.cancel()
-            raise GenerationTimeout(f"generation did not finish within {timeout_s:g} s") from None
-        except asyncio.CancelledError:   # the client went away: stop spending CPU on it
-            request.cancel()
-            raise
+        motion: Motion = await self._answer(self.submit_nowait(request), request, timeout_s, "generation")
+        return motion
 
-    async def run(self, work: Callable[[], T], timeout_s: float) -> T:
-        """`work()` in the model's queue, without blocking the event loop; GenerationTimeout after `timeout_s` (the
-        work is then cancelled: not started if no worker took it yet)."""
-        item = Work(work)
-        if not isinstance(self, MicroBatcher):
-            raise TypeError(f"{type(self).__name__} runs generations only; other work needs a MicroBatcher")
-        future = self.submit_nowait(item)
+    @staticmethod
+    async def _answer(future: Future, item: GenerationRequest | Work, timeout_s: float, what: str) -> Any:
+        """The queued item's answer, awaited off the event loop; past `timeout_s`, or when the caller goes away, the
+        item is cancelled (not started if no worker took it yet, stopped at its next step if running)."""
         try:
             return await asyncio.wait_for(asyncio.wrap_future(future), timeout_s)
         except asyncio.TimeoutError:
             item.cancel()
-            raise GenerationTimeout(f"the work did not finish within {timeout_s:g} s") from None
-        except asyncio.CancelledError:
+            raise GenerationTimeout(f"{what} did not finish within {timeout_s:g} s") from None
+        except asyncio.CancelledError:   # the client went away: stop spending CPU on it
             item.cancel()
             raise
 
@@ -252,6 +242,13 @@ class QueuedWorkers:
 
 class MicroBatcher(QueuedWorkers):
     """Run to the end: the admitted requests are one batch, generated together before the worker admits more."""
+
+    async def run(self, work: Callable[[], T], timeout_s: float) -> T:
+        """`work()` in the model's queue, alone in its batch, without blocking the event loop; GenerationTimeout
+        after `timeout_s` (the work is then cancelled: never started if no worker took it yet)."""
+        item = Work(work)
+        result: T = await self._answer(self.submit_nowait(item), item, timeout_s, "the work")
+        return result
 
     def _work(self) -> None:
         while True:

@@ -17,7 +17,7 @@ from t2m.api import EditRequest, EditResponse, unknown_model_error
 from t2m.runtime.editing import EditError, EditPlan, finish_edit, plan_edit
 from t2m.runtime.formats import STREAM_MEDIA_TYPE
 from t2m.runtime.handles import HandleError, handle_model, read_handle
-from t2m.runtime.scheduling import GenerationTimeout, QueueFullError
+from t2m.runtime.scheduling import GenerationTimeout, MicroBatcher, QueueFullError
 from t2m.runtime.served_models import ServedModel
 from t2m.runtime.types import (
     ComposingEngine,
@@ -125,9 +125,11 @@ async def _edit_recipe(body: EditRequest, model: ServedModel, state: ServiceStat
     if not isinstance(model.engine, RecipeEditingEngine):
         raise _handle_error(HandleError("handle", f"model {model.limits.name!r} cannot edit a recipe"))
     timeout = state.settings.request_timeout_s
-    engine, handle, edits = model.engine, body.handle, body.edits
+    engine, handle, edits, batcher = model.engine, body.handle, body.edits, model.batcher
+    if not isinstance(batcher, MicroBatcher):   # a recipe's model runs batches whole: its family steps no cohorts
+        raise TypeError(f"model {model.limits.name!r} edits recipes but its batcher is a {type(batcher).__name__}")
     try:
-        result = await model.batcher.run(lambda: engine.edit_recipe(handle, edits), timeout)
+        result = await batcher.run(lambda: engine.edit_recipe(handle, edits), timeout)
     except GenerationTimeout:
         raise http_error(GenerationTimeout(f"the edit did not finish within {timeout:g} s"), state.settings) from None
     except QueueFullError as error:
