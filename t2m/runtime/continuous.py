@@ -25,7 +25,7 @@ import numpy as np
 
 from t2m.decoding.lockstep import Cohort, SamplingJob
 from t2m.runtime.step_order import ShortestFirst, StepOrder
-from t2m.runtime.types import GenerationRequest, ModelLimits, Motion
+from t2m.runtime.types import GenerationRequest, Motion, SteppingEngine
 
 __all__ = ["CohortSource", "Finished", "PreparedJobs", "RunningCohorts", "Sampled"]
 
@@ -42,17 +42,6 @@ class PreparedJobs:
     jobs: list = field(default_factory=list)
     owners: list[int] = field(default_factory=list)
     notes: list[list[str]] = field(default_factory=list)
-
-
-class _Engine(Protocol):
-    """What a continuous session needs from its engine (OnnxEngine)."""
-
-    limits: ModelLimits
-
-    def prepare(self, requests: Sequence[GenerationRequest]) -> PreparedJobs: ...
-
-    def finish(self, request: GenerationRequest, segment_codes: list[np.ndarray] | None,
-               warnings: list[str]) -> Motion | BaseException: ...
 
 
 @runtime_checkable
@@ -82,7 +71,7 @@ class _Running:
 class RunningCohorts:
     """One worker's running work: `admit` requests at a step boundary, `advance` the cohorts `order` chooses."""
 
-    def __init__(self, engine: _Engine, codes: CohortSource, order: StepOrder | None = None) -> None:
+    def __init__(self, engine: SteppingEngine, codes: CohortSource, order: StepOrder | None = None) -> None:
         self.engine, self.codes = engine, codes
         self.order: StepOrder = order or ShortestFirst()
         self.running: list[_Running] = []
